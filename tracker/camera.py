@@ -1,0 +1,127 @@
+"""Camera model: pinhole with principal point and radial distortion.
+
+Conventions (DESIGN.md):
+
+* Pixel coordinates (x, y): x = column, y = row, origin at the centre of the
+  top-left pixel (that pixel spans -0.5..0.5 in both axes).
+* Camera frame: +Z is the boresight toward the sky, +X toward increasing x,
+  +Y toward increasing y.
+* Ideal pinhole: x = cx + f*X/Z, y = cy + f*Y/Z with f in pixels
+  (focal_length_mm * 1000 / pixel_size_um).
+* Radial distortion acts on the ideal normalised coordinates (u, v) = (X/Z,
+  Y/Z): (u_d, v_d) = (u, v) * (1 + k1*r^2 + k2*r^4), r^2 = u^2 + v^2, and
+  pixel = (cx + f*u_d, cy + f*v_d). The inverse is solved by Newton's method
+  to machine precision.
+
+All functions are vectorised over leading axes; angles are radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tracker.config import CameraConfig
+
+__all__ = ["CameraModel"]
+
+_NEWTON_STEPS = 12
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Intrinsics of one camera; build it with :meth:`from_config`."""
+
+    width: int
+    height: int
+    f_px: float
+    cx: float
+    cy: float
+    k1: float = 0.0
+    k2: float = 0.0
+
+    @classmethod
+    def from_config(cls, cfg: CameraConfig) -> CameraModel:
+        """Model from the ``camera`` section of the configuration."""
+        return cls(
+            width=cfg.width,
+            height=cfg.height,
+            f_px=cfg.focal_length_mm * 1000.0 / cfg.pixel_size_um,
+            cx=(cfg.width - 1) / 2.0 if cfg.cx is None else cfg.cx,
+            cy=(cfg.height - 1) / 2.0 if cfg.cy is None else cfg.cy,
+            k1=cfg.k1,
+            k2=cfg.k2,
+        )
+
+    # -- geometry -----------------------------------------------------------
+
+    @property
+    def pixel_scale_rad(self) -> float:
+        """Angle subtended by one pixel at the principal point, radians."""
+        return 1.0 / self.f_px
+
+    @property
+    def fov_diagonal_rad(self) -> float:
+        """Full diagonal field of view, radians (from the corner rays)."""
+        corners = self.pixel_to_vector(np.array([[-0.5, -0.5], [self.width - 0.5,
+                                                 self.height - 0.5]]))
+        return float(np.arccos(np.clip(corners[0] @ corners[1], -1.0, 1.0)))
+
+    @property
+    def fov_x_rad(self) -> float:
+        """Full horizontal field of view through the principal point, radians."""
+        ends = self.pixel_to_vector(np.array([[-0.5, self.cy], [self.width - 0.5, self.cy]]))
+        return float(np.arccos(np.clip(ends[0] @ ends[1], -1.0, 1.0)))
+
+    def _distort(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r2 = u * u + v * v
+        scale = 1.0 + r2 * (self.k1 + self.k2 * r2)
+        return u * scale, v * scale
+
+    def _undistort(self, ud: np.ndarray, vd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Invert the radial model: solve rho*(1+k1 rho^2+k2 rho^4) = rho_d for rho."""
+        rho_d = np.hypot(ud, vd)
+        if self.k1 == 0.0 and self.k2 == 0.0:
+            return ud, vd
+        rho = rho_d.copy()
+        for _ in range(_NEWTON_STEPS):
+            r2 = rho * rho
+            g = rho * (1.0 + r2 * (self.k1 + self.k2 * r2)) - rho_d
+            dg = 1.0 + r2 * (3.0 * self.k1 + 5.0 * self.k2 * r2)
+            rho = rho - g / dg
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = np.where(rho_d > 0, rho / np.where(rho_d > 0, rho_d, 1.0), 1.0)
+        return ud * ratio, vd * ratio
+
+    def vector_to_pixel(self, vectors: np.ndarray) -> np.ndarray:
+        """Project camera-frame vectors (..., 3) to pixels (..., 2).
+
+        Vectors with Z <= 0 (behind the camera) give NaN. Vectors need not be
+        unit length.
+        """
+        vectors = np.asarray(vectors, dtype=np.float64)
+        z = vectors[..., 2]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            safe_z = np.where(z > 0, z, np.nan)
+            u = vectors[..., 0] / safe_z
+            v = vectors[..., 1] / safe_z
+        ud, vd = self._distort(u, v)
+        return np.stack([self.cx + self.f_px * ud, self.cy + self.f_px * vd], axis=-1)
+
+    def pixel_to_vector(self, pixels: np.ndarray) -> np.ndarray:
+        """Unit vectors (..., 3) in the camera frame for pixel positions (..., 2)."""
+        pixels = np.asarray(pixels, dtype=np.float64)
+        ud = (pixels[..., 0] - self.cx) / self.f_px
+        vd = (pixels[..., 1] - self.cy) / self.f_px
+        u, v = self._undistort(ud, vd)
+        vec = np.stack([u, v, np.ones_like(u)], axis=-1)
+        return vec / np.linalg.norm(vec, axis=-1, keepdims=True)
+
+    def in_frame(self, pixels: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Boolean mask: pixel positions inside the image, ``margin`` px from its edge."""
+        pixels = np.asarray(pixels, dtype=np.float64)
+        x, y = pixels[..., 0], pixels[..., 1]
+        with np.errstate(invalid="ignore"):
+            return ((x >= -0.5 + margin) & (x <= self.width - 0.5 - margin)
+                    & (y >= -0.5 + margin) & (y <= self.height - 0.5 - margin))

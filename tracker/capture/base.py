@@ -1,0 +1,58 @@
+"""The FrameSource interface every capture backend implements.
+
+A source yields, in order, either a :class:`Frame` (pixels plus metadata) or
+a :class:`FrameError` (what could not be read, and why). An error never ends
+the stream: the consumer counts it and asks for the next item. A source is
+a context manager; leaving the block releases the device or files.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+__all__ = ["Frame", "FrameError", "FrameSource"]
+
+
+@dataclass
+class Frame:
+    """One image and what is known about it.
+
+    ``image`` is 2-D, uint8 (8-bit) or uint16 holding ``bit_depth``-bit
+    values. ``t_ns`` is the exposure mid-point on the monotonic clock (for
+    replay: when the frame was read). Live backends may hand out a view of a
+    reused buffer, valid until the next frame is requested.
+    """
+
+    index: int
+    name: str
+    image: np.ndarray
+    bit_depth: int
+    t_ns: int
+    exposure_us: float | None = None
+    gain: float | None = None
+    meta: dict = field(default_factory=dict)
+
+
+@dataclass
+class FrameError:
+    """A frame that could not be delivered; ``reason`` is one line for people."""
+
+    index: int
+    name: str
+    reason: str
+
+
+class FrameSource(Protocol):
+    """Anything that yields frames: replay files, picamera2, V4L2."""
+
+    def __iter__(self) -> Iterator[Frame | FrameError]: ...
+
+    def close(self) -> None: ...
+
+    def __enter__(self) -> FrameSource: ...
+
+    def __exit__(self, *exc: object) -> None: ...

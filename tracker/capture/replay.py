@@ -1,0 +1,94 @@
+"""Replay backend: frames from image files or folders, in name order.
+
+Folders are expanded to the image files directly inside them (see
+:data:`tracker.capture.imagefile.IMAGE_SUFFIXES`), sorted by name; files
+named explicitly are kept in the order given. With ``loop`` the list starts
+again after the last file; with ``fps`` > 0 frames are paced to that rate on
+the monotonic clock. A file that cannot be read becomes a
+:class:`~tracker.capture.base.FrameError` and replay goes on.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+from tracker.capture.base import Frame, FrameError
+from tracker.capture.imagefile import IMAGE_SUFFIXES, ImageReadError, read_image
+
+__all__ = ["ReplaySource", "expand_paths"]
+
+
+def expand_paths(paths: Sequence[str | Path]) -> list[Path]:
+    """Files named, plus the image files inside folders named, in replay order.
+
+    Raises FileNotFoundError naming the first path that does not exist.
+    """
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            out.extend(sorted(f for f in p.iterdir()
+                              if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES))
+        elif p.exists():
+            out.append(p)
+        else:
+            raise FileNotFoundError(f"{p}: no such file or folder")
+    return out
+
+
+class ReplaySource:
+    """A FrameSource over files; see the module docstring.
+
+    ``expect_shape`` (height, width), when given, turns frames of another
+    size into errors rather than passing them on.
+    """
+
+    def __init__(self, paths: Sequence[str | Path], *, loop: bool = False, fps: float = 0.0,
+                 bits16_depth: int = 10, expect_shape: tuple[int, int] | None = None):
+        self.files = expand_paths(paths)
+        self.loop = loop
+        self.period_ns = int(1e9 / fps) if fps > 0 else 0
+        self.bits16_depth = bits16_depth
+        self.expect_shape = expect_shape
+        self._closed = False
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def _load(self, index: int, path: Path) -> Frame | FrameError:
+        try:
+            image, depth = read_image(path, self.bits16_depth)
+        except ImageReadError as exc:
+            return FrameError(index, path.name, str(exc))
+        if self.expect_shape is not None and image.shape != tuple(self.expect_shape):
+            h, w = self.expect_shape
+            return FrameError(index, path.name, f"{path.name}: frame is {image.shape[1]}x"
+                              f"{image.shape[0]}, expected {w}x{h}")
+        return Frame(index, path.name, image, depth, time.monotonic_ns())
+
+    def __iter__(self) -> Iterator[Frame | FrameError]:
+        index = 0
+        next_due = time.monotonic_ns()
+        while not self._closed and self.files:
+            for path in self.files:
+                if self._closed:
+                    return
+                if self.period_ns:
+                    delay = next_due - time.monotonic_ns()
+                    if delay > 0:
+                        time.sleep(delay / 1e9)
+                    next_due += self.period_ns
+                yield self._load(index, path)
+                index += 1
+            if not self.loop:
+                return
+
+    def close(self) -> None:
+        self._closed = True
+
+    def __enter__(self) -> ReplaySource:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,75 @@
+"""Command line: ``tracker SUBCOMMAND [--config FILE] ...``.
+
+Each subcommand lives in its own module that defines ``register(subparsers,
+common)`` (adding its parser with ``common`` as a parent and
+``set_defaults(func=...)``) and a function ``func(args, cfg) -> int`` that
+receives the parsed arguments and the validated configuration.
+
+Errors a user can fix (a bad config, a missing file) print one line to
+stderr and exit with status 2; no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from tracker.config import ConfigError, load_config, render_yaml
+
+__all__ = ["main", "UserError"]
+
+# Subcommand modules, in the order `tracker --help` lists them.
+COMMAND_MODULES = (
+    "tracker.commands.replay",
+    "tracker.commands.simulate",
+    "tracker.commands.demo",
+    "tracker.commands.bench",
+)
+
+
+class UserError(Exception):
+    """An error the user can fix; printed as one line, exit status 2."""
+
+
+def _config_command(args: argparse.Namespace, cfg) -> int:
+    sys.stdout.write(render_yaml(cfg, comments=not args.bare))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--config", metavar="FILE",
+                        help="YAML configuration (default: the built-in defaults; "
+                             "see `tracker config`)")
+    common.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    parser = argparse.ArgumentParser(
+        prog="tracker", description="Star tracker: detect, identify, solve attitude, "
+                                    "report over a UART.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    p = sub.add_parser("config", parents=[common], help="print the effective configuration")
+    p.add_argument("--bare", action="store_true", help="without the comments")
+    p.set_defaults(func=_config_command)
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub, common)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+                        stream=sys.stderr)
+    try:
+        cfg = load_config(args.config)
+        return int(args.func(args, cfg) or 0)
+    except (ConfigError, UserError, FileNotFoundError) as exc:
+        print(f"tracker {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,399 @@
+"""Configuration: one YAML file loaded into validated, frozen dataclasses.
+
+Every key has a shipped default, a unit and a one-line description, declared
+once with :func:`knob` in the section dataclasses below. The same declarations
+drive the loader's validation, ``tracker config`` (which prints the effective
+configuration as commented YAML) and the README's key table.
+
+A bad file is refused with a :class:`ConfigError` whose message is one line
+naming the file, the key, what was found and what was expected, e.g.::
+
+    cfg.yaml: camera.focal_length_mm: found -3 (int), expected a number >= 0.1
+
+Each pipeline stage receives only its own section (``cfg.detect``,
+``cfg.link`` ...), never the whole configuration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import types
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = ["ConfigError", "Config", "knob", "load_config", "render_yaml", "config_checksum"]
+
+
+class ConfigError(ValueError):
+    """A configuration file that cannot be used; the message is one line."""
+
+
+def knob(default: Any, doc: str, unit: str = "", *, min: float | None = None,
+         max: float | None = None, choices: tuple | None = None) -> Any:
+    """Declare a configuration key: default, description, unit and limits."""
+    meta = {"doc": doc, "unit": unit, "min": min, "max": max, "choices": choices}
+    if isinstance(default, (list, dict)):
+        raise TypeError("mutable defaults are not allowed; use a tuple")
+    return dataclasses.field(default=default, metadata=meta)
+
+
+# --------------------------------------------------------------------------
+# Sections. Each stage owns one; add keys with knob() and document them.
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Pinhole camera with radial distortion (conventions: tracker.camera)."""
+
+    width: int = knob(1600, "image width", "px", min=1, max=65535)
+    height: int = knob(1300, "image height", "px", min=1, max=65535)
+    pixel_size_um: float = knob(3.0, "pixel pitch", "um", min=0.1, max=100.0)
+    focal_length_mm: float = knob(16.0, "lens focal length", "mm", min=0.1, max=10000.0)
+    cx: float | None = knob(None, "principal point column; null = (width-1)/2", "px")
+    cy: float | None = knob(None, "principal point row; null = (height-1)/2", "px")
+    k1: float = knob(0.0, "radial distortion, r^2 term (normalised coordinates)", "",
+                     min=-10.0, max=10.0)
+    k2: float = knob(0.0, "radial distortion, r^4 term (normalised coordinates)", "",
+                     min=-100.0, max=100.0)
+    bit_depth: int = knob(10, "bits per pixel delivered by the sensor", "bit",
+                          choices=(8, 10, 12, 16))
+
+
+@dataclass(frozen=True)
+class CatalogueConfig:
+    """The bundled Hipparcos-derived star list."""
+
+    path: str | None = knob(None, "catalogue file; null = the bundled catalogue/stars.npz")
+    epoch_year: float | None = knob(
+        None, "observation epoch for proper motion, decimal Julian year; null = now", "yr",
+        min=1900.0, max=2200.0)
+    mag_limit: float = knob(7.5, "faintest Hipparcos Hp magnitude used", "mag",
+                            min=-2.0, max=12.5)
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Synthetic frames (tracker.sim)."""
+
+    seed: int = knob(1, "random seed; equal seeds give identical frames", min=0)
+
+
+@dataclass(frozen=True)
+class DetectConfig:
+    """Star detection and centroiding (tracker.detect)."""
+
+    method: str = knob("seed", "centroiding pipeline",
+                       choices=("seed",))
+    max_stars: int = knob(256, "largest number of stars reported per frame", min=1,
+                          max=65535)
+    seed_blur_sigma_px: float = knob(1.5, "seed method: Gaussian blur sigma", "px",
+                                     min=0.3, max=10.0)
+    seed_blur_ksize_px: int = knob(7, "seed method: Gaussian blur kernel size (odd)", "px",
+                                   choices=(3, 5, 7, 9, 11, 13, 15))
+    seed_threshold_frac: float = knob(0.3, "seed method: threshold as a fraction of the "
+                                      "filtered image's maximum", "", min=0.01, max=0.99)
+
+
+@dataclass(frozen=True)
+class IdentifyConfig:
+    """Star identification (tracker.identify)."""
+
+    enabled: bool = knob(True, "identify stars and solve attitude")
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """Serial link to the flight computer (tracker.protocol)."""
+
+    port: str = knob("/dev/ttyAMA0", "serial device of the flight-computer UART (or a "
+                     "pyserial URL)")
+    baudrate: int = knob(921600, "UART speed; 8N1, so baudrate/10 bytes per second", "baud",
+                         min=1200, max=4000000)
+    bandwidth_fraction: float = knob(0.9, "share of baudrate/10 the writer may use; it "
+                                     "paces itself so queue priority, not the kernel buffer, "
+                                     "decides what goes first", "", min=0.05, max=1.0)
+    attitude_rate_hz: float = knob(30.0, "ATTITUDE output rate; 0 = off (SET_OUTPUT "
+                                   "changes it at run time)", "Hz", min=0.0, max=100.0)
+    centroids_rate_hz: float = knob(1.0, "CENTROIDS output rate; 0 = off", "Hz",
+                                    min=0.0, max=100.0)
+    status_rate_hz: float = knob(1.0, "STATUS output rate; 0 = off", "Hz", min=0.0,
+                                 max=100.0)
+    max_centroids: int = knob(48, "most stars sent per frame in CENTROIDS (brightest "
+                              "first), over several packets of up to 40", "stars",
+                              min=0, max=1020)
+    queue_attitude: int = knob(4, "ATTITUDE packets waiting to be sent; when full the "
+                               "oldest is dropped", "packets", min=1, max=1024)
+    queue_centroids: int = knob(8, "CENTROIDS packets waiting; oldest dropped when full",
+                                "packets", min=1, max=1024)
+    queue_status: int = knob(2, "STATUS packets waiting; oldest dropped when full",
+                             "packets", min=1, max=1024)
+    max_age_ms: float = knob(500.0, "a queued packet older than this is dropped unsent",
+                             "ms", min=1.0, max=60000.0)
+    write_timeout_s: float = knob(0.5, "a write to the port that takes longer counts as a "
+                                  "port error (the port is reopened)", "s", min=0.01,
+                                  max=60.0)
+    read_timeout_s: float = knob(0.05, "longest wait of the reader for command bytes", "s",
+                                 min=0.001, max=5.0)
+    reopen_backoff_s: float = knob(0.5, "first wait before reopening a failed port; "
+                                   "doubles after each failure", "s", min=0.01, max=60.0)
+    reopen_backoff_max_s: float = knob(8.0, "longest wait between reopen attempts", "s",
+                                       min=0.01, max=600.0)
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    """Where frames come from (tracker.capture)."""
+
+    backend: str = knob("replay", "frame source", choices=("replay", "picamera2", "v4l2"))
+    replay_path: str | None = knob(None, "file or folder replayed by the replay backend")
+    loop: bool = knob(False, "replay: start again after the last file")
+    fps: float = knob(0.0, "frames per second; 0 = replay as fast as possible, live: the "
+                      "longest frame the exposure allows", "Hz", min=0.0, max=1000.0)
+    device: str = knob("0", "live: picamera2 camera number, or a V4L2 node (/dev/videoN or "
+                       "its number)")
+    raw_format: str = knob("R16", "picamera2: raw format asked for; the granted one is "
+                           "checked and *_PISP_COMP* (lossy) refused",
+                           choices=("R16", "R10", "R8", "R10_CSI2P", "R8_CSI2P"))
+    raw_shift: int = knob(6, "right shift applied to 16-bit raw words (6: 10-bit data in the "
+                          "high bits of R16, unverified on the Pi: `tracker selftest` says "
+                          "which bits vary)", "bit", min=0, max=8)
+    exposure_us: float = knob(20000.0, "starting exposure time", "us", min=10.0,
+                              max=2_000_000.0)
+    exposure_min_us: float = knob(100.0, "exposure control: shortest exposure", "us",
+                                  min=10.0, max=2_000_000.0)
+    exposure_max_us: float = knob(100000.0, "exposure control: longest exposure", "us",
+                                  min=10.0, max=2_000_000.0)
+    gain: float = knob(4.0, "starting analogue gain", "x", min=1.0, max=64.0)
+    gain_max: float = knob(16.0, "exposure control: highest analogue gain", "x",
+                           min=1.0, max=64.0)
+    auto_exposure: bool = knob(True, "adjust exposure and gain to keep stars detectable "
+                               "and unsaturated")
+    target_peak: float = knob(0.5, "exposure control: wanted brightest-star peak as a "
+                              "fraction of full scale", "", min=0.05, max=0.95)
+    buffer_count: int = knob(4, "live: camera buffers queued", min=2, max=16)
+    timeout_s: float = knob(2.0, "live: longest wait for a frame before the camera counts "
+                            "as timed out", "s", min=0.05, max=60.0)
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    """The daemon loop (tracker.service)."""
+
+    log_level: str = knob("INFO", "logging threshold",
+                          choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    frames: int = knob(0, "stop after this many frames; 0 = run until stopped", min=0)
+    watchdog_s: float = knob(10.0, "in-process stall watchdog: a loop stuck this long dumps "
+                             "its stacks and exits for systemd to restart it; 0 = off", "s",
+                             min=0.0, max=3600.0)
+    status_period_s: float = knob(1.0, "interval of STATUS packets and systemd STATUS lines",
+                                  "s", min=0.05, max=3600.0)
+    retry_initial_s: float = knob(0.5, "first wait before reopening a failed camera or port",
+                                  "s", min=0.01, max=60.0)
+    retry_max_s: float = knob(8.0, "longest wait between reopen attempts (doubling backoff)",
+                              "s", min=0.01, max=600.0)
+    track_after: int = knob(2, "consecutive solved frames before acquiring becomes "
+                            "tracking", min=1, max=1000)
+    lost_after: int = knob(3, "consecutive unsolved frames before tracking falls back to "
+                           "acquiring", min=1, max=1000)
+    fault_after: int = knob(20, "consecutive failed frames (unreadable, stage error, no "
+                            "camera) before the state is fault", min=1, max=100000)
+    start_state: str = knob("acquiring", "state at start; standby waits for the flight "
+                            "computer's command", choices=("standby", "acquiring"))
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole configuration; one attribute per section."""
+
+    camera: CameraConfig = CameraConfig()
+    catalogue: CatalogueConfig = CatalogueConfig()
+    sim: SimConfig = SimConfig()
+    detect: DetectConfig = DetectConfig()
+    identify: IdentifyConfig = IdentifyConfig()
+    link: LinkConfig = LinkConfig()
+    capture: CaptureConfig = CaptureConfig()
+    service: ServiceConfig = ServiceConfig()
+
+
+# --------------------------------------------------------------------------
+# Loading and validation
+# --------------------------------------------------------------------------
+
+
+def _expectation(tp: Any, meta: dict) -> str:
+    """Human wording of what a key accepts."""
+    base = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    nullable = base in (typing.Union, types.UnionType) and type(None) in args
+    if nullable:
+        tp = next(a for a in args if a is not type(None))
+    if meta.get("choices"):
+        text = "one of " + ", ".join(repr(c) for c in meta["choices"])
+    else:
+        text = {int: "an integer", float: "a number", str: "a string",
+                bool: "true or false"}.get(tp, str(tp))
+        if typing.get_origin(tp) is tuple:
+            text = "a list of numbers"
+        lo, hi = meta.get("min"), meta.get("max")
+        if lo is not None and hi is not None:
+            text += f" in [{lo:g}, {hi:g}]"
+        elif lo is not None:
+            text += f" >= {lo:g}"
+        elif hi is not None:
+            text += f" <= {hi:g}"
+    return text + (" or null" if nullable else "")
+
+
+def _coerce(value: Any, tp: Any, meta: dict) -> Any:
+    """Return value converted to tp, or raise ValueError if it does not fit."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        tp = next(a for a in args if a is not type(None))
+        origin = typing.get_origin(tp)
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ValueError
+        return tuple(_coerce(v, typing.get_args(tp)[0], {}) for v in value)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ValueError
+    elif tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError
+    elif tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError
+        value = float(value)
+        if value != value or value in (float("inf"), float("-inf")):
+            raise ValueError
+    elif tp is str:
+        if not isinstance(value, str):
+            raise ValueError
+    if meta.get("choices") and value not in meta["choices"]:
+        raise ValueError
+    if meta.get("min") is not None and value < meta["min"]:
+        raise ValueError
+    if meta.get("max") is not None and value > meta["max"]:
+        raise ValueError
+    return value
+
+
+def _build_section(cls: type, data: Any, where: str, source: str) -> Any:
+    if data is None:
+        return cls()
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: {where}: found {_show(data)}, expected a mapping of keys")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    values = {}
+    for key, value in data.items():
+        if key not in fields:
+            known = ", ".join(sorted(fields))
+            raise ConfigError(f"{source}: {where}.{key}: found an unknown key, expected one of: "
+                              f"{known}")
+        meta = dict(fields[key].metadata)
+        try:
+            values[key] = _coerce(value, hints[key], meta)
+        except ValueError:
+            raise ConfigError(f"{source}: {where}.{key}: found {_show(value)}, expected "
+                              f"{_expectation(hints[key], meta)}") from None
+    return cls(**values)
+
+
+def _show(value: Any) -> str:
+    text = repr(value)
+    if len(text) > 60:
+        text = text[:57] + "..."
+    return f"{text} ({type(value).__name__})"
+
+
+def config_from_dict(data: Any, source: str = "<config>") -> Config:
+    """Validate a parsed YAML document and return the frozen Config."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: (top level): found {_show(data)}, expected a mapping "
+                          "of sections")
+    hints = typing.get_type_hints(Config)
+    sections = {}
+    for name, value in data.items():
+        if name not in hints:
+            known = ", ".join(f.name for f in dataclasses.fields(Config))
+            raise ConfigError(f"{source}: {name}: found an unknown section, expected one of: "
+                              f"{known}")
+        sections[name] = _build_section(hints[name], value, name, source)
+    return Config(**sections)
+
+
+def load_config(path: str | Path | None) -> Config:
+    """Load and validate a YAML configuration file; None gives the defaults."""
+    if path is None:
+        return Config()
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the file: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: found bytes that are not UTF-8, expected a YAML text "
+                          "file") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "somewhere"
+        problem = getattr(exc, "problem", None) or "not valid YAML"
+        raise ConfigError(f"{path}: (YAML syntax) at {where}: found {problem}, expected "
+                          "valid YAML") from None
+    return config_from_dict(data, str(path))
+
+
+# --------------------------------------------------------------------------
+# Output
+# --------------------------------------------------------------------------
+
+
+def _yaml_scalar(value: Any) -> str:
+    if isinstance(value, tuple):
+        return "[" + ", ".join(_yaml_scalar(v) for v in value) + "]"
+    return yaml.safe_dump(value, default_flow_style=True).strip().removesuffix("\n...")
+
+
+def render_yaml(config: Config, comments: bool = True) -> str:
+    """The configuration as YAML, each key preceded by its description and unit."""
+    lines: list[str] = []
+    for section in dataclasses.fields(config):
+        obj = getattr(config, section.name)
+        if comments:
+            lines.append(f"# {(type(obj).__doc__ or '').strip().splitlines()[0]}")
+        lines.append(f"{section.name}:")
+        for f in dataclasses.fields(obj):
+            if comments:
+                unit = f" [{f.metadata['unit']}]" if f.metadata.get("unit") else ""
+                lines.append(f"  # {f.metadata['doc']}{unit}")
+            lines.append(f"  {f.name}: {_yaml_scalar(getattr(obj, f.name))}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def config_checksum(config: Config) -> int:
+    """CRC-32-sized digest (first 4 bytes of SHA-256) of the effective configuration."""
+    digest = hashlib.sha256(render_yaml(config, comments=False).encode()).digest()
+    return int.from_bytes(digest[:4], "big")
+
+
+def iter_knobs(config_cls: type = Config):
+    """Yield (section, key, default, unit, doc) for every key: the README's table."""
+    for section in dataclasses.fields(config_cls):
+        for f in dataclasses.fields(section.type if isinstance(section.type, type)
+                                    else typing.get_type_hints(config_cls)[section.name]):
+            yield section.name, f.name, f.default, f.metadata.get("unit", ""), f.metadata["doc"]

@@ -1,0 +1,36 @@
+"""Star detection and centroiding.
+
+One :class:`Detector` is made per frame shape and bit depth with
+:func:`make_detector`; its ``detect(image)`` returns
+:class:`~tracker.detect.result.Detections`. Methods are chosen by name in
+the ``detect.method`` configuration key (see :data:`METHODS`).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Protocol
+
+import numpy as np
+
+from tracker.config import DetectConfig
+from tracker.detect.result import STAR_DTYPE, Detections, StarFlag
+
+__all__ = ["Detector", "make_detector", "METHODS", "Detections", "STAR_DTYPE", "StarFlag"]
+
+# method name -> "module:class"; each class takes (cfg, shape, bit_depth).
+METHODS = {
+    "seed": "tracker.detect.seed:SeedDetector",
+}
+
+
+class Detector(Protocol):
+    """Finds stars in frames of one shape and bit depth."""
+
+    def detect(self, image: np.ndarray) -> Detections: ...
+
+
+def make_detector(cfg: DetectConfig, shape: tuple[int, int], bit_depth: int) -> Detector:
+    """The detector named by ``cfg.method`` for frames of ``shape`` (rows, cols)."""
+    module, cls = METHODS[cfg.method].split(":")
+    return getattr(importlib.import_module(module), cls)(cfg, tuple(shape), bit_depth)

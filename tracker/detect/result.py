@@ -1,0 +1,58 @@
+"""The result every detection method returns.
+
+Stars are rows of a fixed-size structured array (:data:`STAR_DTYPE`) owned by
+the detector and reused frame after frame; ``Detections.stars`` is a view of
+its first ``count`` rows, valid until the next call to ``detect``. Copy it
+(``stars.copy()``) to keep it.
+
+Positions follow the project's pixel convention: x = column, y = row, origin
+at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["STAR_DTYPE", "StarFlag", "Detections"]
+
+STAR_DTYPE = np.dtype([
+    ("x", np.float64),      # column, px
+    ("y", np.float64),      # row, px
+    ("flux", np.float64),   # background-subtracted sum, ADU
+    ("peak", np.float64),   # highest background-subtracted pixel, ADU
+    ("snr", np.float64),    # flux / its noise (background and shot noise)
+    ("npix", np.int32),     # pixels in the segment
+    ("flags", np.uint16),   # StarFlag bits
+])
+
+
+class StarFlag:
+    """Bits of the ``flags`` field."""
+
+    SATURATED = 1   # a pixel reached the sensor's full scale
+    EDGE = 2        # the spot touches the image border; centroid biased
+    ELONGATED = 4   # second moments say streak or trail, not a point
+    BLENDED = 8     # split from a segment shared with another star
+
+
+@dataclass
+class Detections:
+    """Stars found in one frame, with diagnostics.
+
+    ``reason`` is None for a normal frame, or a short code (``"empty"``,
+    ``"saturated"``, ``"bad_dtype"``, ``"non_finite"``, ``"wrong_shape"``...)
+    saying why the frame gave no or flagged results. ``counters`` holds
+    what was rejected (``hot_pixels``, ``cosmic_rays``...), ``stages_ms`` the
+    time per stage in milliseconds.
+    """
+
+    stars: np.ndarray
+    reason: str | None = None
+    counters: dict = field(default_factory=dict)
+    stages_ms: dict = field(default_factory=dict)
+
+    @property
+    def count(self) -> int:
+        return len(self.stars)
