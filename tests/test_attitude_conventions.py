@@ -6,9 +6,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tracker.attitude import angle_between_rotations, matrix_from_quat, \
-    matrix_from_radec_roll, quat_from_matrix, radec_roll_from_matrix, radec_to_vector, \
-    vector_to_radec
+from tracker.attitude import (
+    angle_between_rotations,
+    matrix_from_quat,
+    matrix_from_radec_roll,
+    quat_from_matrix,
+    radec_roll_from_matrix,
+    radec_to_vector,
+    vector_to_radec,
+)
 
 TRUTH = Path(__file__).parent / "data" / "truth"
 

@@ -124,3 +124,14 @@ def test_replay_loop_and_pacing(tmp_path, frame10):
 def test_missing_path_is_named(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"nothing.png: no such file or folder"):
         ReplaySource([tmp_path / "nothing.png"])
+
+
+def test_frames_jsonl_metadata_is_carried(tmp_path, frame10):
+    cv2.imwrite(str(tmp_path / "a.png"), frame10)
+    cv2.imwrite(str(tmp_path / "b.png"), frame10)
+    (tmp_path / "frames.jsonl").write_text(
+        '{"file": "a.png", "t_ns": 1000, "exposure_us": 20000, "gain": 4.0}\n'
+        'not json\n{"file": "b.png", "t_ns": 34333333}\n')
+    a, b = list(ReplaySource([tmp_path]))
+    assert (a.t_ns, a.exposure_us, a.gain) == (1000, 20000, 4.0)
+    assert (b.t_ns, b.exposure_us, b.gain) == (34333333, None, None)

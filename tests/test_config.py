@@ -6,8 +6,14 @@ import sys
 import pytest
 import yaml
 
-from tracker.config import Config, ConfigError, config_from_dict, iter_knobs, load_config, \
-    render_yaml
+from tracker.config import (
+    Config,
+    ConfigError,
+    config_from_dict,
+    iter_knobs,
+    load_config,
+    render_yaml,
+)
 
 
 def write(tmp_path, text):

@@ -16,7 +16,7 @@ import importlib
 import logging
 import sys
 
-from tracker.config import ConfigError, load_config, render_yaml
+from tracker.config import ConfigError, load_config, render_markdown_table, render_yaml
 
 __all__ = ["main", "UserError"]
 
@@ -26,6 +26,11 @@ COMMAND_MODULES = (
     "tracker.commands.simulate",
     "tracker.commands.demo",
     "tracker.commands.bench",
+    "tracker.commands.run",
+    "tracker.commands.record",
+    "tracker.commands.selftest",
+    "tracker.commands.monitor",
+    "tracker.commands.calibrate",
 )
 
 
@@ -34,7 +39,10 @@ class UserError(Exception):
 
 
 def _config_command(args: argparse.Namespace, cfg) -> int:
-    sys.stdout.write(render_yaml(cfg, comments=not args.bare))
+    if args.markdown:
+        sys.stdout.write(render_markdown_table())
+    else:
+        sys.stdout.write(render_yaml(cfg, comments=not args.bare))
     return 0
 
 
@@ -50,6 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     p = sub.add_parser("config", parents=[common], help="print the effective configuration")
     p.add_argument("--bare", action="store_true", help="without the comments")
+    p.add_argument("--markdown", action="store_true",
+                   help="every key as a Markdown table (the README's reference)")
     p.set_defaults(func=_config_command)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub, common)

@@ -67,13 +67,21 @@ class CameraConfig:
 
 @dataclass(frozen=True)
 class CatalogueConfig:
-    """The bundled Hipparcos-derived star list."""
+    """The bundled Hipparcos-derived star list (tracker.catalogue).
 
-    path: str | None = knob(None, "catalogue file; null = the bundled catalogue/stars.npz")
+    mag_limit 7.5 keeps 23,270 stars: at least 19 (95 % of pointings: 31)
+    in the smallest field, 11 x 8.9 deg with the 25 mm lens, and it covers
+    the stars solved in the real test frames (Hp to ~7.5); the bundled file
+    holds Hp <= 8.0 for narrower fields (catalogue/README.md).
+    """
+
+    path: str | None = knob(None, "catalogue file (with <file>.sha256 beside it); "
+                            "null = the bundled catalogue/stars.npz")
     epoch_year: float | None = knob(
         None, "observation epoch for proper motion, decimal Julian year; null = now", "yr",
         min=1900.0, max=2200.0)
-    mag_limit: float = knob(7.5, "faintest Hipparcos Hp magnitude used", "mag",
+    mag_limit: float = knob(7.5, "faintest Hipparcos Hp magnitude used; at most the "
+                            "file's own limit (8.0 for the bundled file)", "mag",
                             min=-2.0, max=12.5)
 
 
@@ -82,14 +90,75 @@ class SimConfig:
     """Synthetic frames (tracker.sim)."""
 
     seed: int = knob(1, "random seed; equal seeds give identical frames", min=0)
+    noise_model: str = knob(
+        "realistic", "sensor model (realistic, none) or one of the seed method's 8-bit "
+        "noise models", choices=("realistic", "none", "gaussian_poisson", "salt_pepper",
+                                 "speckle", "glare"))
+    psf_sigma_px: float = knob(1.2, "Gaussian PSF sigma (M12 lens slightly defocused)", "px",
+                               min=0.2, max=20.0)
+    exposure_ms: float = knob(100.0, "exposure time", "ms", min=0.001, max=60000.0)
+    f_number: float = knob(2.0, "lens focal ratio; aperture = focal length / f_number", "f/#",
+                           min=0.5, max=64.0)
+    transmission: float = knob(0.85, "optics transmission, band average", "fraction", min=0.0,
+                               max=1.0)
+    quantum_efficiency: float = knob(
+        0.45, "sensor QE averaged over the Hp band (OV2311 peak about 0.6)", "e-/photon", min=0.0,
+        max=1.0)
+    zero_point_photons: float = knob(
+        4.0e10, "photons of a Hp = 0 star above the atmosphere across the Hp band",
+        "photon/m^2/s", min=0.0)
+    sky_mag_arcsec2: float = knob(21.0, "sky surface brightness (dark site 21-22; space "
+                                  "zodiacal light about 22.5)", "mag/arcsec^2", min=5.0,
+                                  max=30.0)
+    dark_current_e_s: float = knob(10.0, "mean dark current of a normal pixel", "e-/s",
+                                   min=0.0)
+    read_noise_e: float = knob(2.2, "read noise (full well / 10^(68 dB / 20))", "e-",
+                               min=0.0)
+    full_well_e: float = knob(5500.0, "full-well capacity (10^(37.4 dB / 10))", "e-",
+                              min=1.0)
+    gain_e_per_adu: float = knob(
+        1.35, "conversion gain at 10 bits (5.4 e-/ADU at analogue gain 1; default = gain 4); "
+        "an n-bit ADC uses gain * 2^(10-n)", "e-/ADU", min=0.001)
+    bias_adu: float = knob(64.0, "black level at 10 bits (scaled by 2^(n-10) for n bits)",
+                           "ADU", min=0.0)
+    hot_pixel_fraction: float = knob(2e-4, "fraction of pixels with high dark current "
+                                     "(fixed per seed, i.e. per sensor)", "fraction", min=0.0,
+                                     max=0.1)
+    hot_pixel_dark_e_s: float = knob(5000.0, "mean dark current of a hot pixel "
+                                     "(exponentially distributed)", "e-/s", min=0.0)
+    cosmic_ray_rate_cm2_s: float = knob(5.0, "cosmic-ray hits on the sensor (LEO about 1-10, "
+                                        "ground about 0.02)", "1/cm^2/s", min=0.0)
+    cosmic_ray_e: float = knob(800.0, "mean charge a cosmic ray leaves per pixel of its "
+                               "track", "e-", min=0.0)
+    glare_e: float = knob(0.0, "realistic model: stray-light peak at the glare centre "
+                          "(0 = none)", "e-", min=0.0)
+    glare_radius_px: float = knob(400.0, "glare Gaussian radius r0 (seed method: 200-600)",
+                                  "px", min=1.0)
+    gp_variance: float = knob(0.15, "gaussian_poisson: Gaussian variance on the 0..1 scale",
+                              "(full scale)^2", min=0.0)
+    sp_density: float = knob(0.05, "salt_pepper: fraction of pixels set to 0 or 1", "fraction",
+                             min=0.0, max=1.0)
+    speckle_variance: float = knob(0.15, "speckle: variance of the multiplicative mask "
+                                   "(mean 1)", "(mask value)^2", min=0.0)
+    snr_db: float | None = knob(None, "seed noise models: target image SNR (sets the model's "
+                                "strength); null = use its parameter as given", "dB",
+                                min=-40.0, max=60.0)
+    smear: bool = knob(True, "integrate star motion within the exposure when slewing")
+    fps: float = knob(10.0, "frame rate of simulated sequences", "Hz", min=0.001,
+                      max=1000.0)
+    rate_deg_s: tuple[float, ...] = knob((0.0, 0.0, 0.0), "body angular rate about the "
+                                         "camera x, y, z axes", "deg/s")
 
 
 @dataclass(frozen=True)
 class DetectConfig:
     """Star detection and centroiding (tracker.detect)."""
 
-    method: str = knob("seed", "centroiding pipeline",
-                       choices=("seed",))
+    method: str = knob("seed", "detection and centroiding method: default (fixed-memory "
+                       "detector), seed (the dissertation's pipeline), com, gaussian_fit, "
+                       "gaussian_fit_fast, sieve (its baselines)",
+                       choices=("default", "seed", "com", "gaussian_fit", "gaussian_fit_fast",
+                                "sieve"))
     max_stars: int = knob(256, "largest number of stars reported per frame", min=1,
                           max=65535)
     seed_blur_sigma_px: float = knob(1.5, "seed method: Gaussian blur sigma", "px",
@@ -98,6 +167,50 @@ class DetectConfig:
                                    choices=(3, 5, 7, 9, 11, 13, 15))
     seed_threshold_frac: float = knob(0.3, "seed method: threshold as a fraction of the "
                                       "filtered image's maximum", "", min=0.01, max=0.99)
+    psf_sigma_px: float = knob(1.2, "default: Gaussian PSF sigma of the optics (sets the "
+                               "matched filter and the centroid window)", "px",
+                               min=0.3, max=10.0)
+    threshold_sigma: float = knob(6.0, "default: detection threshold on the matched-filtered "
+                                  "image, in units of its background noise", "sigma",
+                                  min=1.0, max=1000.0)
+    background_tile_px: int = knob(32, "default: side of the background grid's tiles", "px",
+                                   min=4, max=4096)
+    background_step_px: int = knob(4, "default: spacing of the pixels sampled in each "
+                                   "background tile", "px", min=1, max=256)
+    impulse_sigma: float = knob(5.0, "default: an impulse (hot pixel, cosmic ray) differs "
+                                "from its 3x3 median by more than this", "sigma",
+                                min=1.0, max=1000.0)
+    impulse_contrast: float | None = knob(
+        None, "default: ... and by more than this fraction of its height above the "
+        "background; null = halfway between a centred PSF's value and 1", "",
+        min=0.0, max=1.0)
+    max_impulses: int = knob(32768, "default: impulse candidates tested one by one; more "
+                             "switch to a whole-frame test", min=1, max=10000000)
+    deblend_dip_sigma: float = knob(1.5, "default: a fainter local maximum is a separate "
+                                    "star if the filtered image dips this far below it "
+                                    "on the way to a brighter one", "sigma",
+                                    min=0.0, max=1000.0)
+    blend_radius_px: int | None = knob(None, "default: distance within which two stars are "
+                                       "a pair (deblend test, BLENDED flag); null = the "
+                                       "centroid window's radius", "px", min=1, max=64)
+    centroid_iterations: int = knob(8, "default: most iterations of the windowed centroid",
+                                    min=1, max=100)
+    centroid_tolerance_px: float = knob(0.001, "default: stop iterating when no centroid "
+                                        "moves more than this", "px", min=0.0, max=1.0)
+    sharp_size_ratio: float = knob(0.5, "default: reject a spot whose windowed second "
+                                   "moment is below this fraction of the PSF's (a "
+                                   "cosmic-ray cluster)", "", min=0.0, max=1.0)
+    sharp_min_snr: float = knob(10.0, "default: apply the sharpness and elongation tests "
+                                "only above this SNR", "", min=0.0, max=1e6)
+    elongation_max: float = knob(0.3, "default: flag ELONGATED above this ellipticity of "
+                                 "the windowed moments", "", min=0.0, max=1.0)
+    saturation_adu: float | None = knob(None, "default: level flagged SATURATED; null = "
+                                        "full scale of the bit depth", "ADU", min=1.0)
+    max_candidates: int = knob(2048, "default: local maxima examined per frame (brightest "
+                               "kept)", min=1, max=1000000)
+    max_pixels_above: int = knob(262144, "default: pixels above threshold examined per "
+                                 "frame; more raise the threshold (reason 'crowded')",
+                                 min=1, max=100000000)
 
 
 @dataclass(frozen=True)
@@ -105,6 +218,37 @@ class IdentifyConfig:
     """Star identification (tracker.identify)."""
 
     enabled: bool = knob(True, "identify stars and solve attitude")
+    database: str | None = knob(None, "pattern database file; null = the catalogue/ "
+                                "patterns_*.npz whose field-of-view range holds the camera's")
+    pattern_stars: int = knob(12, "brightest image stars whose triangles lost-in-space tries",
+                              "stars", min=3, max=64)
+    verify_stars: int = knob(40, "brightest image stars checked against a hypothesis",
+                             "stars", min=4, max=1024)
+    pair_tolerance_px: float = knob(1.5, "half-width of the band of catalogue separations "
+                                    "each image separation selects", "px", min=0.01,
+                                    max=100.0)
+    match_radius_px: float = knob(2.0, "an image star matches a predicted catalogue star "
+                                  "within this distance", "px", min=0.01, max=100.0)
+    max_prob_false: float = knob(1e-7, "accept a match only if the chance that it is wrong "
+                                 "is below this (per frame; tracker.identify.verify)", "",
+                                 min=1e-30, max=0.5)
+    min_matched: int = knob(5, "fewest matched stars for an accepted attitude", "stars",
+                            min=4, max=1000)
+    max_triads: int = knob(400, "lost in space: most image triangles tried per frame",
+                           min=1, max=100000)
+    max_lis_ms: float = knob(250.0, "lost in space: give up after this long", "ms",
+                             min=1.0, max=60000.0)
+    min_separation_px: float = knob(8.0, "triangle stars closer together than this are "
+                                    "not used", "px", min=0.0, max=10000.0)
+    duplicate_px: float = knob(0.5, "centroids closer than this are one star (the fainter "
+                               "is dropped)", "px", min=0.0, max=100.0)
+    centroid_sigma_px: float = knob(0.25, "prior centroid noise per axis, blended with the "
+                                    "fit residuals for the reported sigmas", "px",
+                                    min=0.001, max=100.0)
+    track_gate_px: float = knob(12.0, "tracking: predicted stars are searched this far "
+                                "from their prediction", "px", min=0.1, max=1000.0)
+    track_max_gap_s: float = knob(2.0, "tracking: predict only from a solution this recent",
+                                  "s", min=0.0, max=3600.0)
 
 
 @dataclass(frozen=True)
@@ -117,7 +261,8 @@ class LinkConfig:
                          min=1200, max=4000000)
     bandwidth_fraction: float = knob(0.9, "share of baudrate/10 the writer may use; it "
                                      "paces itself so queue priority, not the kernel buffer, "
-                                     "decides what goes first", "", min=0.05, max=1.0)
+                                     "decides what goes first", "fraction", min=0.05,
+                                     max=1.0)
     attitude_rate_hz: float = knob(30.0, "ATTITUDE output rate; 0 = off (SET_OUTPUT "
                                    "changes it at run time)", "Hz", min=0.0, max=100.0)
     centroids_rate_hz: float = knob(1.0, "CENTROIDS output rate; 0 = off", "Hz",
@@ -191,12 +336,12 @@ class ServiceConfig:
     watchdog_s: float = knob(10.0, "in-process stall watchdog: a loop stuck this long dumps "
                              "its stacks and exits for systemd to restart it; 0 = off", "s",
                              min=0.0, max=3600.0)
-    status_period_s: float = knob(1.0, "interval of STATUS packets and systemd STATUS lines",
-                                  "s", min=0.05, max=3600.0)
-    retry_initial_s: float = knob(0.5, "first wait before reopening a failed camera or port",
-                                  "s", min=0.01, max=60.0)
-    retry_max_s: float = knob(8.0, "longest wait between reopen attempts (doubling backoff)",
-                              "s", min=0.01, max=600.0)
+    status_period_s: float = knob(1.0, "interval of systemd STATUS lines (STATUS packets: "
+                                  "link.status_rate_hz)", "s", min=0.05, max=3600.0)
+    retry_initial_s: float = knob(0.5, "first wait before reopening a failed camera", "s",
+                                  min=0.01, max=60.0)
+    retry_max_s: float = knob(8.0, "longest wait between camera reopen attempts (doubling "
+                              "backoff)", "s", min=0.01, max=600.0)
     track_after: int = knob(2, "consecutive solved frames before acquiring becomes "
                             "tracking", min=1, max=1000)
     lost_after: int = knob(3, "consecutive unsolved frames before tracking falls back to "
@@ -391,9 +536,18 @@ def config_checksum(config: Config) -> int:
     return int.from_bytes(digest[:4], "big")
 
 
-def iter_knobs(config_cls: type = Config):
-    """Yield (section, key, default, unit, doc) for every key: the README's table."""
-    for section in dataclasses.fields(config_cls):
-        for f in dataclasses.fields(section.type if isinstance(section.type, type)
-                                    else typing.get_type_hints(config_cls)[section.name]):
+def iter_knobs():
+    """Yield (section, key, default, unit, doc) for every key of the configuration."""
+    hints = typing.get_type_hints(Config)
+    for section in dataclasses.fields(Config):
+        for f in dataclasses.fields(hints[section.name]):
             yield section.name, f.name, f.default, f.metadata.get("unit", ""), f.metadata["doc"]
+
+
+def render_markdown_table() -> str:
+    """Every key as a Markdown table: the README's configuration reference."""
+    rows = ["| key | default | unit | what it does |", "|---|---|---|---|"]
+    for section, key, default, unit, doc in iter_knobs():
+        shown = _yaml_scalar(default).replace("|", "\\|")
+        rows.append(f"| `{section}.{key}` | `{shown}` | {unit} | {doc.replace('|', '/')} |")
+    return "\n".join(rows) + "\n"

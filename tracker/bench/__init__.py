@@ -7,4 +7,8 @@ int`` and a one-line ``__doc__``. Results go to ``--out`` (default
 """
 
 # name -> module; `tracker bench all` runs them in this order.
-BENCHES = {}
+BENCHES = {
+    "protocol": "tracker.bench.protocol",
+    "solve": "tracker.bench.solve",
+    "soak": "tracker.bench.soak",
+}

@@ -6,10 +6,17 @@ named explicitly are kept in the order given. With ``loop`` the list starts
 again after the last file; with ``fps`` > 0 frames are paced to that rate on
 the monotonic clock. A file that cannot be read becomes a
 :class:`~tracker.capture.base.FrameError` and replay goes on.
+
+Metadata: a folder may hold ``frames.jsonl`` (written by ``tracker record``
+and ``tracker simulate``), one JSON object per frame with ``file`` and any of
+``t_ns`` (exposure mid-point), ``exposure_us`` and ``gain``. Replayed frames
+carry those values, so tracking sees the recorded time base rather than the
+replay's; without it ``t_ns`` is the time the file was read.
 """
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -17,7 +24,9 @@ from pathlib import Path
 from tracker.capture.base import Frame, FrameError
 from tracker.capture.imagefile import IMAGE_SUFFIXES, ImageReadError, read_image
 
-__all__ = ["ReplaySource", "expand_paths"]
+__all__ = ["ReplaySource", "expand_paths", "read_metadata", "METADATA_FILE"]
+
+METADATA_FILE = "frames.jsonl"
 
 
 def expand_paths(paths: Sequence[str | Path]) -> list[Path]:
@@ -37,6 +46,26 @@ def expand_paths(paths: Sequence[str | Path]) -> list[Path]:
     return out
 
 
+def read_metadata(paths: Sequence[str | Path]) -> dict[Path, dict]:
+    """Per-file metadata from the ``frames.jsonl`` of each folder named (see module doc).
+
+    Lines that are not JSON objects with a ``file`` key are skipped.
+    """
+    meta: dict[Path, dict] = {}
+    for folder in map(Path, paths):
+        index = folder / METADATA_FILE
+        if not (folder.is_dir() and index.is_file()):
+            continue
+        for line in index.read_text(encoding="utf-8", errors="replace").splitlines():
+            try:
+                record = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(record, dict) and isinstance(record.get("file"), str):
+                meta[(folder / record["file"]).resolve()] = record
+    return meta
+
+
 class ReplaySource:
     """A FrameSource over files; see the module docstring.
 
@@ -47,6 +76,7 @@ class ReplaySource:
     def __init__(self, paths: Sequence[str | Path], *, loop: bool = False, fps: float = 0.0,
                  bits16_depth: int = 10, expect_shape: tuple[int, int] | None = None):
         self.files = expand_paths(paths)
+        self.metadata = read_metadata(paths)
         self.loop = loop
         self.period_ns = int(1e9 / fps) if fps > 0 else 0
         self.bits16_depth = bits16_depth
@@ -65,7 +95,11 @@ class ReplaySource:
             h, w = self.expect_shape
             return FrameError(index, path.name, f"{path.name}: frame is {image.shape[1]}x"
                               f"{image.shape[0]}, expected {w}x{h}")
-        return Frame(index, path.name, image, depth, time.monotonic_ns())
+        meta = self.metadata.get(path.resolve(), {})
+        t_ns = meta.get("t_ns")
+        return Frame(index, path.name, image, depth,
+                     int(t_ns) if isinstance(t_ns, int) else time.monotonic_ns(),
+                     exposure_us=meta.get("exposure_us"), gain=meta.get("gain"))
 
     def __iter__(self) -> Iterator[Frame | FrameError]:
         index = 0

@@ -56,6 +56,8 @@ def frame_record(name: str, result: FrameResult) -> dict:
         record["detect_reason"] = det.reason
     if sol is not None and not sol.ok:
         record["solve_reason"] = sol.reason
+    elif result.solve_reason:
+        record["solve_reason"] = result.solve_reason
     if det.counters:
         record["rejected"] = {k: int(v) for k, v in det.counters.items()}
     return record

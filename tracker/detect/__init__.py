@@ -20,6 +20,7 @@ __all__ = ["Detector", "make_detector", "METHODS", "Detections", "STAR_DTYPE", "
 
 # method name -> "module:class"; each class takes (cfg, shape, bit_depth).
 METHODS = {
+    "default": "tracker.detect.default:DefaultDetector",
     "seed": "tracker.detect.seed:SeedDetector",
 }
 

@@ -1,0 +1,25 @@
+"""Shared pytest set-up: the ``hardware`` marker.
+
+Tests marked ``@pytest.mark.hardware`` need the Raspberry Pi (camera, UART).
+They are skipped unless pytest is given ``--hardware`` or the environment has
+``TRACKER_HARDWARE=1``; on the Pi run ``pytest --hardware -m hardware``.
+"""
+
+import os
+
+import pytest
+
+
+def pytest_addoption(parser):
+    parser.addoption("--hardware", action="store_true",
+                     help="run tests marked hardware (on the Raspberry Pi)")
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption("--hardware") or os.environ.get("TRACKER_HARDWARE") == "1":
+        return
+    skip = pytest.mark.skip(reason="needs the Raspberry Pi: give --hardware or "
+                                   "TRACKER_HARDWARE=1")
+    for item in items:
+        if "hardware" in item.keywords:
+            item.add_marker(skip)

@@ -1,0 +1,213 @@
+"""The default detector against simulated truth (tracker.sim)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from tracker.config import DetectConfig, SimConfig
+from tracker.detect import StarFlag, make_detector
+from tracker.detect.crb import centroid_crb
+from tracker.detect.default import effective_sigma
+from tracker.sim import render_points
+
+CFG = DetectConfig(method="default")
+# A clean sensor: no hot pixels or cosmic rays unless a test adds them.
+CLEAN = dataclasses.replace(SimConfig(), hot_pixel_fraction=0.0, cosmic_ray_rate_cm2_s=0.0)
+
+
+def _match(truth_x, truth_y, stars, radius=1.5):
+    """Index of the nearest detection per truth star (-1 if none within radius) and distance."""
+    if len(stars) == 0:
+        return np.full(len(truth_x), -1), np.full(len(truth_x), np.inf)
+    d = np.hypot(truth_x[:, None] - stars["x"][None, :], truth_y[:, None] - stars["y"][None, :])
+    j = d.argmin(axis=1)
+    dist = d[np.arange(len(truth_x)), j]
+    return np.where(dist <= radius, j, -1), dist
+
+
+def _grid_stars(n_side, shape, rng, spacing_margin=20):
+    """Star positions on a jittered grid: isolated, away from the border."""
+    rows, cols = shape
+    gy, gx = np.meshgrid(np.linspace(spacing_margin, rows - spacing_margin, n_side),
+                         np.linspace(spacing_margin, cols - spacing_margin, n_side), indexing="ij")
+    return (gx.ravel() + rng.uniform(-0.5, 0.5, gx.size),
+            gy.ravel() + rng.uniform(-0.5, 0.5, gy.size))
+
+
+def _sensor_variance(frame):
+    """Pixel variance (e-^2) of the sensor model for a star's own light: shot + sky + read."""
+    sky = frame.truth["noise"]["sky_e"] + SimConfig().dark_current_e_s * 0.1
+    gain = frame.truth["noise"]["gain_e_per_adu"]
+    return lambda s: s + sky + SimConfig().read_noise_e ** 2 + gain ** 2 / 12.0
+
+
+def test_centroids_reach_the_cramer_rao_bound_for_bright_stars():
+    """RMSE within 1.5x the Cramer-Rao bound at peak SNR >= 20 (the issue's target).
+
+    With 144 stars per level the RMSE estimate itself scatters by about
+    1/sqrt(2 * 144) = 6 %, far inside the 50 % margin.
+    """
+    rng = np.random.default_rng(11)
+    shape = (400, 400)
+    det = make_detector(CFG, shape, 10)
+    for electrons in (5000.0, 25000.0):
+        xs, ys = _grid_stars(12, shape, rng)
+        frame = render_points(shape, xs, ys, np.full(len(xs), electrons), CLEAN, rng,
+                              noise_model="realistic")
+        assert frame.stars["peak_snr"].min() >= 20
+        result = det.detect(frame.image)
+        idx, dist = _match(xs, ys, result.stars)
+        assert np.all(idx >= 0)
+        rmse = float(np.sqrt(np.mean(dist ** 2)))
+        bound = centroid_crb(xs, ys, frame.stars["flux_e"], SimConfig().psf_sigma_px,
+                             _sensor_variance(frame))
+        crb = float(np.sqrt(np.mean(bound ** 2)))
+        assert rmse <= 1.5 * crb, (electrons, rmse, crb)
+
+
+def test_noise_free_star_is_centred_to_a_hundredth_of_a_pixel():
+    """Without noise only the estimator's own bias is left: < 0.01 px for sigma 1.2 px."""
+    rng = np.random.default_rng(3)
+    shape = (120, 120)
+    xs, ys = _grid_stars(4, shape, rng)
+    frame = render_points(shape, xs, ys, np.full(len(xs), 4000.0), CLEAN, rng,
+                          noise_model="none")
+    result = make_detector(CFG, shape, 10).detect(frame.image)
+    idx, dist = _match(xs, ys, result.stars)
+    assert np.all(idx >= 0)
+    assert dist.max() < 0.01
+    assert result.count == len(xs)
+
+
+def test_faint_stars_found_and_noise_not_reported():
+    """Recall of stars at peak SNR >= 5 and no false detections on a realistic sensor.
+
+    At the default threshold of 6 sigma a 256 x 256 frame of pure noise has
+    about 1e-3 false peaks (Gaussian tail), so zero is expected over 8 frames.
+    Hot pixels and cosmic rays are present and must be counted, not reported.
+    """
+    rng = np.random.default_rng(5)
+    shape = (256, 256)
+    det = make_detector(CFG, shape, 10)
+    found = detectable = false = 0
+    counted = 0
+    for _ in range(8):
+        xs, ys = _grid_stars(6, shape, rng)
+        electrons = 10 ** rng.uniform(2.2, 4.0, len(xs))
+        frame = render_points(shape, xs, ys, electrons, SimConfig(), rng,
+                              noise_model="realistic")
+        result = det.detect(frame.image)
+        ok = frame.stars["peak_snr"] >= 5
+        idx, _ = _match(xs, ys, result.stars)
+        detectable += int(ok.sum())
+        found += int((idx[ok] >= 0).sum())
+        matched = np.zeros(result.count, bool)
+        matched[idx[idx >= 0]] = True
+        false += int((~matched).sum())
+        counted += result.counters["hot_pixels"] + result.counters["cosmic_rays"]
+    assert detectable > 150
+    assert found / detectable >= 0.99
+    assert false == 0
+    assert counted > 8 * 10  # about 13 hot pixels per frame at this size (SimConfig)
+
+
+def test_hot_pixel_and_cosmic_ray_are_counted_not_reported():
+    shape = (64, 64)
+    image = np.full(shape, 64, np.uint16)
+    image += np.random.default_rng(0).integers(0, 3, shape, dtype=np.uint16)
+    image[10, 12] = 900                       # hot pixel
+    image[40, 20:25] = 700                    # cosmic-ray track, one pixel wide
+    image[50, 50] = 300                       # another hot pixel, fainter
+    result = make_detector(CFG, shape, 10).detect(image)
+    assert result.count == 0
+    assert result.counters["hot_pixels"] == 2
+    assert result.counters["cosmic_rays"] == 1
+    assert result.counters["impulse_pixels"] == 7
+
+
+def test_close_pair_is_split_and_flagged_blended():
+    """Two equal stars 4.5 px apart (3.7 PSF sigma): two detections, both BLENDED."""
+    rng = np.random.default_rng(8)
+    shape = (64, 64)
+    xs, ys = np.array([30.2, 34.7]), np.array([31.6, 31.6])
+    frame = render_points(shape, xs, ys, [5000.0, 5000.0], CLEAN, rng,
+                          noise_model="realistic")
+    result = make_detector(CFG, shape, 10).detect(frame.image)
+    idx, dist = _match(xs, ys, result.stars, radius=0.5)
+    assert result.count == 2 and np.all(idx >= 0)
+    assert np.all(result.stars["flags"] & StarFlag.BLENDED)
+
+
+def test_flags_saturated_edge_and_elongated():
+    rng = np.random.default_rng(9)
+    shape = (80, 80)
+    path_x = np.linspace(50.0, 58.0, 17)[None, :]       # an 8 px trail
+    frame = render_points(shape, [20.3], [20.6], [2e5], CLEAN, rng, noise_model="realistic")
+    saturated = make_detector(CFG, shape, 10).detect(frame.image)
+    assert saturated.count == 1 and saturated.stars["flags"][0] & StarFlag.SATURATED
+    assert abs(saturated.stars["x"][0] - 20.3) < 0.1
+    frame = render_points(shape, [1.2], [40.4], [4000.0], CLEAN, rng, noise_model="realistic")
+    edge = make_detector(CFG, shape, 10).detect(frame.image)
+    assert edge.count == 1 and edge.stars["flags"][0] & StarFlag.EDGE
+    frame = render_points(shape, path_x, np.full_like(path_x, 60.0), [20000.0], CLEAN, rng,
+                          noise_model="realistic")
+    trail = make_detector(CFG, shape, 10).detect(frame.image)
+    assert trail.count >= 1 and np.all(trail.stars["flags"] & StarFlag.ELONGATED)
+
+
+def test_glare_gradient_does_not_make_detections():
+    """A glare of 3000 e- peak (r0 = 150 px) beside 20 stars: the stars and nothing else."""
+    rng = np.random.default_rng(12)
+    shape = (300, 300)
+    sim = dataclasses.replace(SimConfig(), glare_e=3000.0, glare_radius_px=150.0)
+    xs, ys = _grid_stars(5, shape, rng, spacing_margin=30)
+    frame = render_points(shape, xs, ys, np.full(len(xs), 3000.0), sim, rng,
+                          noise_model="realistic")
+    result = make_detector(CFG, shape, 10).detect(frame.image)
+    idx, dist = _match(xs, ys, result.stars)
+    assert np.all(idx >= 0)
+    assert result.count == len(xs)
+    assert dist.max() < 0.3
+
+
+def test_every_opencv_call_writes_into_its_buffer(monkeypatch):
+    """Each cv2 call given dst= returns that very array (no hidden reallocation)."""
+    import tracker.detect.background as background
+    import tracker.detect.default as default
+    import tracker.detect.impulse as impulse
+    import tracker.detect.peaks as peaks
+
+    calls = []
+
+    class Spy:
+        def __getattr__(self, name):
+            real = getattr(cv2, name)
+            if not callable(real):
+                return real
+
+            def wrapped(*args, **kwargs):
+                out = real(*args, **kwargs)
+                if "dst" in kwargs:
+                    calls.append((name, out is kwargs["dst"]))
+                return out
+            return wrapped
+
+    for module in (background, default, impulse, peaks):
+        monkeypatch.setattr(module, "cv2", Spy())
+    rng = np.random.default_rng(4)
+    shape = (128, 160)
+    xs, ys = _grid_stars(4, shape, rng)
+    frame = render_points(shape, xs, ys, np.full(len(xs), 2000.0), SimConfig(), rng,
+                          noise_model="realistic")
+    make_detector(CFG, shape, 10).detect(frame.image)
+    names = {name for name, _ in calls}
+    assert {"GaussianBlur", "medianBlur", "resize", "compare", "subtract", "absdiff"} <= names
+    assert all(same for _, same in calls), [c for c in calls if not c[1]]
+
+
+def test_effective_sigma_adds_the_pixel_width():
+    assert effective_sigma(1.2) == pytest.approx(np.sqrt(1.44 + 1 / 12))

@@ -1,0 +1,159 @@
+"""The FC's C99 decoder (tools/fc/) agrees with the Python decoder on the service's bytes."""
+
+import math
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tracker.protocol.decoder import StreamDecoder
+from tracker.protocol.encoder import Encoder
+from tracker.protocol.messages import BY_ID, TYPES, Direction, Mode, MsgId
+
+FC = Path(__file__).resolve().parents[1] / "tools" / "fc"
+GCC = shutil.which("gcc")
+pytestmark = pytest.mark.skipif(GCC is None, reason="gcc not found: the C decoder cannot "
+                                                    "be compiled here")
+
+
+@pytest.fixture(scope="module", name="st_dump")
+def fixture_st_dump(tmp_path_factory):
+    exe = tmp_path_factory.mktemp("fc") / "st_dump"
+    subprocess.run([GCC, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2",
+                    "-o", str(exe), str(FC / "st_dump.c"), str(FC / "st_decoder.c")],
+                   check=True, capture_output=True, text=True)
+    return exe
+
+
+def _service_stream(seed=11):
+    """Telemetry as the service sends it, with noise, truncation and corruption between."""
+    rng = np.random.default_rng(seed)
+    enc = Encoder()
+    parts = []
+    for k in range(20):
+        parts.append(rng.bytes(int(rng.integers(0, 40))))
+        q = rng.normal(size=4)
+        q = q / np.linalg.norm(q) * np.sign(q[0])
+        parts.append(enc.encode(MsgId.ATTITUDE, frame_id=k, t_ns=int(rng.integers(0, 2**63)),
+                                q_w=q[0], q_x=q[1], q_y=q[2], q_z=q[3],
+                                sigma_xy_arcsec=rng.uniform(1, 10), sigma_roll_arcsec=math.nan,
+                                rate_x=rng.normal(), rate_y=-0.0, rate_z=math.inf,
+                                matched=k, mode=Mode.TRACKING, flags=k % 16))
+        stars = np.zeros(int(rng.integers(0, 70)), dtype=BY_ID[MsgId.CENTROIDS].item_dtype)
+        for name in ("x", "y", "flux"):
+            stars[name] = rng.uniform(0, 1600, len(stars))
+        stars["hip"] = rng.integers(0, 2**32, len(stars))
+        stars["flags"] = rng.integers(0, 2**16, len(stars))
+        cen = enc.centroids(k, k * 7, stars)
+        parts += cen
+        if k % 5 == 0:
+            parts.append(cen[0][:int(rng.integers(1, len(cen[0])))])   # truncated copy
+            bad = bytearray(cen[-1])
+            bad[-5] ^= 0x10                                          # CRC will fail
+            parts.append(bytes(bad))
+        if k % 7 == 0:
+            parts.append(enc.encode(MsgId.STATUS, uptime_s=k, frame_rate_hz=29.9,
+                                    exposure_us=20000, gain=1.5, cpu_temp_c=60.25, mode=1,
+                                    frames=k, capture_faults=0, solve_failures=2,
+                                    link_drops=3, link_reopens=4, rx_rejects=5,
+                                    last_error=6, config_crc=0xFFFFFFFF))
+            parts.append(enc.encode(MsgId.NACK, cmd_id=0x21, cmd_seq=16383, code=4,
+                                    rx_t_ns=2**64 - 1))
+    return b"".join(parts)
+
+
+def _python_lines(data):
+    """What st_dump should print, from the Python decoder's values."""
+    lines = []
+    for p in StreamDecoder().feed(data):
+        words = [str(p.seq), p.name]
+        for f in p.msg.fields:
+            words.append(f"{f.name}={p.values[f.name]!r}")
+        if p.items is not None:
+            for k, row in enumerate(p.items):
+                words += [f"{f.name}[{k}]={row[f.name].item()!r}" for f in p.msg.item]
+        lines.append(words)
+    return lines
+
+
+def _same(c_word, py_word, f32):
+    name, c_val = c_word.split("=")
+    py_name, py_val = py_word.split("=")
+    if name != py_name:
+        return False
+    if not f32:
+        return int(c_val) == int(py_val)
+    a, b = float(c_val), float(py_val)
+    # %.9g round-trips a binary32 exactly, so compare as float32.
+    return (np.float32(a) == np.float32(b) and math.copysign(1, a) == math.copysign(1, b)) or \
+        (math.isnan(a) and math.isnan(b))
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 4096])
+def test_c_decoder_agrees_with_python_on_every_field(st_dump, chunk):
+    data = _service_stream()
+    run = subprocess.run([str(st_dump), str(chunk)], input=data, capture_output=True,
+                         check=True)
+    c_lines = [line.split() for line in run.stdout.decode().splitlines()]
+    counters = dict(w.split("=") for w in c_lines.pop()[1:])
+    py = _python_lines(data)
+    assert len(c_lines) == len(py) > 50
+    f32 = {f.name for m in BY_ID.values() for f in (*m.fields, *m.item) if f.type == "f32"}
+    for c, p in zip(c_lines, py, strict=True):
+        assert c[:2] == p[:2] and len(c) == len(p)
+        for cw, pw in zip(c[2:], p[2:], strict=True):
+            assert _same(cw, pw, cw.split("=")[0].split("[")[0] in f32), (cw, pw)
+    dec = StreamDecoder()
+    dec.feed(data)
+    assert int(counters["frames"]) == dec.counters["packets"]
+    assert int(counters["bad_crc"]) == dec.counters["bad_crc"] > 0
+    assert int(counters["bad_header"]) == dec.counters["bad_header"]
+
+
+def test_c_header_types_match_the_table():
+    header = (FC / "st_protocol.h").read_text()
+    for m in BY_ID.values():
+        for f in m.fields:
+            assert f"    {TYPES[f.type][2]} {f.name};" in header
+
+
+def test_c_frame_builder_and_packers_make_the_same_commands_as_python(tmp_path):
+    src = tmp_path / "build_cmds.c"
+    src.write_text("""
+#include <stdio.h>
+#include "st_decoder.h"
+static void put(unsigned apid, unsigned seq, const uint8_t *p, size_t n)
+{
+    uint8_t f[64];
+    size_t k, len = st_build_frame(f, sizeof f, apid, 1, seq, p, n);
+    for (k = 0; k < len; k++) printf("%02x", f[k]);
+    printf("\\n");
+}
+int main(void)
+{
+    uint8_t p[16];
+    st_set_mode_t mode = {ST_MODE_TRACKING};
+    st_set_output_t out = {ST_ID_CENTROIDS, 2.5f};
+    st_time_sync_t ts = {1234567890123456789ull};
+    st_ping_t ping = {0};
+    put(ST_ID_SET_MODE, 0, p, st_pack_set_mode(p, &mode));
+    put(ST_ID_SET_OUTPUT, 0, p, st_pack_set_output(p, &out));
+    put(ST_ID_TIME_SYNC, 0, p, st_pack_time_sync(p, &ts));
+    put(ST_ID_PING, 0, p, st_pack_ping(p, &ping));
+    put(ST_ID_PING, 16383, p, st_pack_ping(p, &ping));
+    return 0;
+}
+""")
+    exe = tmp_path / "build_cmds"
+    subprocess.run([GCC, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-I", str(FC),
+                    "-o", str(exe), str(src), str(FC / "st_decoder.c")], check=True)
+    got = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.split()
+    enc = Encoder(Direction.TC)
+    pings = [enc.encode(MsgId.PING) for _ in range(16384)]
+    want = [enc.encode(MsgId.SET_MODE, mode=Mode.TRACKING),
+            enc.encode(MsgId.SET_OUTPUT, msg_id=MsgId.CENTROIDS, rate_hz=2.5),
+            enc.encode(MsgId.TIME_SYNC, fc_time_ns=1234567890123456789),
+            pings[0], pings[16383]]
+    assert got == [w.hex() for w in want]

@@ -1,0 +1,131 @@
+"""The service talking to a flight computer over a pseudo-terminal, decoded per the ICD."""
+
+import dataclasses
+import os
+import pty
+import threading
+import time
+import tty
+
+import numpy as np
+import pytest
+
+from tracker.capture.base import Frame
+from tracker.config import Config
+from tracker.detect import STAR_DTYPE, Detections
+from tracker.notify import Notifier
+from tracker.pipeline import FrameResult
+from tracker.protocol.decoder import StreamDecoder
+from tracker.protocol.encoder import Encoder
+from tracker.protocol.messages import AttitudeFlag, Direction, Mode, MsgId
+from tracker.service import Service, State
+from tracker.service_link import ServiceLink
+
+
+class Solution:
+    ok = True
+    q = np.array([0.5, 0.5, 0.5, 0.5])
+    sigma_cross_arcsec, sigma_roll_arcsec, matched = 4.0, 30.0, 12
+    rate_rad_s = None
+    hip = np.array([11767, 0, 32349])
+
+
+class Pipeline:
+    def process(self, image, bit_depth, t_ns):
+        stars = np.zeros(3, STAR_DTYPE)
+        stars["x"], stars["flux"] = [1.0, 2.0, 3.0], [30.0, 20.0, 10.0]
+        return FrameResult(Detections(stars), Solution(), 1.0, {})
+
+
+class Frames:
+    """An endless paced source of tiny frames (the link test needs time, not pixels)."""
+
+    def __init__(self):
+        self.closed = False
+
+    def __iter__(self):
+        i = 0
+        while not self.closed:
+            time.sleep(0.005)
+            yield Frame(i, f"f{i}", np.zeros((8, 8), np.uint16), 10, 1000 + i)
+            i += 1
+
+    def close(self):
+        self.closed = True
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def read_packets(fd, decoder, until, timeout=5.0):
+    """Decode TM from the master side until ``until(packets)`` or the timeout."""
+    packets = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not until(packets):
+        try:
+            data = os.read(fd, 4096)
+        except BlockingIOError:
+            time.sleep(0.01)
+            continue
+        packets.extend(decoder.feed(data))
+    return packets
+
+
+@pytest.fixture(name="fc")
+def fixture_fc():
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    os.set_blocking(master, False)
+    yield master, os.ttyname(slave)
+    os.close(master)
+    os.close(slave)
+
+
+def test_fc_commands_garbage_and_telemetry(fc):
+    master, port = fc
+    cfg = Config()
+    cfg = dataclasses.replace(cfg, link=dataclasses.replace(cfg.link, port=port,
+                                                            centroids_rate_hz=50.0),
+                              service=dataclasses.replace(cfg.service, watchdog_s=0.0))
+    svc = Service(cfg, source_factory=Frames, pipeline=Pipeline(), link=ServiceLink(cfg),
+                  notifier=Notifier(""))
+    runner = threading.Thread(target=svc.run)
+    runner.start()
+    try:
+        decoder = StreamDecoder(Direction.TM)
+        att = read_packets(master, decoder,
+                           lambda ps: sum(p.id == MsgId.ATTITUDE for p in ps) >= 3)
+        att = [p for p in att if p.id == MsgId.ATTITUDE]
+        assert len(att) >= 3
+        v = att[-1].values
+        assert np.allclose([v["q_w"], v["q_x"], v["q_y"], v["q_z"]], 0.5)
+        assert v["flags"] & AttitudeFlag.VALID and v["matched"] == 12
+        assert v["mode"] == Mode.TRACKING            # solved twice in a row: tracking
+
+        fc_enc = Encoder(Direction.TC)
+        bad = bytearray(fc_enc.encode(MsgId.PING))
+        bad[-1] ^= 0xFF                                # CRC broken: NACKed, counted
+        os.write(master, os.urandom(200) + bytes(bad)
+                 + fc_enc.encode(MsgId.SET_MODE, mode=Mode.STANDBY))
+        replies = read_packets(master, decoder, lambda ps: any(p.id == MsgId.ACK for p in ps))
+        assert any(p.id == MsgId.NACK for p in replies)
+        ack = next(p for p in replies if p.id == MsgId.ACK)
+        assert ack.values["cmd_id"] == MsgId.SET_MODE
+        deadline = time.monotonic() + 5
+        while svc.state != State.STANDBY and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert svc.state == State.STANDBY
+        assert svc.health.faults["rx_reject"] >= 1
+
+        os.write(master, fc_enc.encode(MsgId.SET_EXPOSURE, exposure_us=1500))
+        deadline = time.monotonic() + 5
+        while svc.exposure.exposure_us != 1500.0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert svc.exposure.exposure_us == 1500.0 and not svc.exposure.auto
+    finally:
+        svc.request_stop()
+        runner.join(timeout=10)
+    assert not runner.is_alive()

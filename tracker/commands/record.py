@@ -1,0 +1,117 @@
+"""``tracker record --out DIR``: save camera frames with their metadata for replay.
+
+Frames come from ``capture.backend`` (normally picamera2 or v4l2) and are
+written as ``DIR/frame_NNNNNN.npy`` (default: exact, fast) or ``.png``
+(16-bit for 10-bit data, lossless, smaller, slower), which ``tracker replay
+DIR`` reads in name order. ``DIR/frames.jsonl`` gets one JSON object per
+frame: ``file``, ``index``, ``t_ns`` (exposure mid-point, monotonic),
+``wall_time`` (UTC, ISO 8601), ``exposure_us``, ``gain``, ``bit_depth``,
+``cpu_temp_c`` and the backend's ``meta`` (sensor timestamp...); a frame the
+source could not deliver gets ``{"index", "error"}``.
+
+Disk-space guard: before each frame the free space of DIR's file system is
+checked, and recording stops (exit status 1, after closing the files
+cleanly) when writing the frame would leave less than ``--min-free-mb``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import shutil
+import signal
+from datetime import UTC, datetime
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from tracker.capture.base import FrameError
+from tracker.capture.live import CameraError, cpu_temperature_c, make_source
+from tracker.cli import UserError
+from tracker.config import Config
+
+__all__ = ["register", "run", "DiskGuard"]
+
+log = logging.getLogger(__name__)
+
+
+class DiskGuard:
+    """Says whether ``nbytes`` more may be written under ``folder`` keeping ``min_free`` bytes."""
+
+    def __init__(self, folder: Path, min_free_bytes: int):
+        self.folder = folder
+        self.min_free = min_free_bytes
+
+    def allows(self, nbytes: int) -> bool:
+        return shutil.disk_usage(self.folder).free - nbytes >= self.min_free
+
+
+def register(sub, common) -> None:
+    p = sub.add_parser("record", parents=[common], help="save camera frames and metadata "
+                       "(exposure, gain, time, temperature) for `tracker replay`")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for frames + frames.jsonl")
+    p.add_argument("--frames", type=int, default=100, metavar="N",
+                   help="frames to save (default 100; 0 = until stopped)")
+    p.add_argument("--every", type=int, default=1, metavar="K", help="keep every K-th frame")
+    p.add_argument("--format", choices=("npy", "png"), default="npy", help="file format")
+    p.add_argument("--min-free-mb", type=float, default=500.0, metavar="MB",
+                   help="stop when less than this would remain free (default 500)")
+    p.add_argument("--replay", nargs="+", metavar="PATH",
+                   help="record from these files instead of the camera (tests, re-encoding)")
+    p.set_defaults(func=run)
+
+
+def _save(path: Path, image: np.ndarray) -> None:
+    if path.suffix == ".npy":
+        np.save(path, image, allow_pickle=False)
+    elif not cv2.imwrite(str(path), image):
+        raise OSError(f"{path}: could not write the PNG")
+
+
+def run(args, cfg: Config) -> int:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    guard = DiskGuard(out, int(args.min_free_mb * 2**20))
+    if args.replay:
+        cfg = dataclasses.replace(cfg, capture=dataclasses.replace(cfg.capture,
+                                                                   backend="replay"))
+    stop = []
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+    saved = seen = 0
+    code = 0
+    try:
+        with make_source(cfg, args.replay) as source, \
+                open(out / "frames.jsonl", "a", encoding="utf-8") as meta:
+            for item in source:
+                if stop or (args.frames and saved >= args.frames):
+                    break
+                seen += 1
+                if (seen - 1) % max(args.every, 1):
+                    continue
+                if isinstance(item, FrameError):
+                    meta.write(json.dumps({"index": item.index, "error": item.reason}) + "\n")
+                    continue
+                if not guard.allows(item.image.nbytes):
+                    log.error("disk-space guard: less than %.0f MB would remain free in %s; "
+                              "stopped after %d frames", args.min_free_mb, out, saved)
+                    code = 1
+                    break
+                name = f"frame_{saved:06d}.{args.format}"
+                _save(out / name, item.image)
+                record = {"file": name, "index": item.index, "t_ns": item.t_ns,
+                          "wall_time": datetime.now(UTC).isoformat(timespec="milliseconds"),
+                          "exposure_us": item.exposure_us, "gain": item.gain,
+                          "bit_depth": item.bit_depth, "cpu_temp_c": cpu_temperature_c(),
+                          "source": item.name, "meta": item.meta}
+                meta.write(json.dumps(record) + "\n")
+                saved += 1
+    except KeyboardInterrupt:
+        pass
+    except CameraError as exc:
+        raise UserError(f"camera: {exc} ({saved} frames saved)") from None
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    log.info("recorded %d frames to %s", saved, out)
+    return code

@@ -1,0 +1,212 @@
+"""The project's detector: robust background, impulse rejection, matched filter, windowed centroid.
+
+Per frame, with every buffer made at construction for one frame shape and
+``detect.max_stars``:
+
+1. ``input``: check the frame and copy it into a zero-bordered float32
+   buffer (tracker.detect.frame_input; bad frames give a reason code).
+2. ``background``: per-tile median and low-side noise on a coarse grid,
+   3x3-median-filtered and interpolated to full size (tracker.detect.background).
+3. ``impulses``: hot pixels, cosmic-ray tracks and salt-and-pepper pixels,
+   recognised by being much sharper than the PSF, are replaced by their 3x3
+   median and counted (tracker.detect.impulse).
+4. ``filter``: Gaussian of the PSF sigma (the matched filter), minus the background.
+5. ``peaks``: local maxima above ``detect.threshold_sigma`` times the
+   filtered noise; close pairs split where the profile dips between them
+   (tracker.detect.peaks).
+6. ``centroid``: iterative Gaussian-windowed centroid, flux, SNR and shape
+   (tracker.detect.windowed). Spots much narrower than the PSF (cosmic-ray
+   clusters that survived step 3) are rejected and counted.
+
+``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
+found in step 3 plus sharp spots from step 6), sharp_spots, candidates.
+Stars are ordered brightest first (by matched-filter peak).
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from tracker.config import DetectConfig
+from tracker.detect.background import QUANTISATION_NOISE_ADU, BackgroundGrid
+from tracker.detect.frame_input import FrameInput, Reason
+from tracker.detect.impulse import ImpulseFilter, psf_contrast
+from tracker.detect.layout import PaddedLayout
+from tracker.detect.peaks import PeakFinder
+from tracker.detect.result import Detections, StarFlag
+from tracker.detect.stars import StarTable
+from tracker.detect.windowed import WindowedCentroider
+from tracker.timing import StageTimer
+
+__all__ = ["DefaultDetector", "effective_sigma"]
+
+
+def effective_sigma(psf_sigma_px: float) -> float:
+    """Sigma of a Gaussian PSF after integration over a square pixel, px."""
+    return math.sqrt(psf_sigma_px ** 2 + 1.0 / 12.0)
+
+
+def _reflected_noise_gain(kernel: np.ndarray, rows: int,
+                         cols: int) -> tuple[np.ndarray, np.ndarray]:
+    """Noise gain of the filter at the first rows and columns, relative to the interior.
+
+    OpenCV's BORDER_REFLECT folds the kernel onto itself at the border, so
+    a pixel there sums some inputs twice and its filtered noise grows by
+    sqrt(sum(folded^2) / sum(kernel^2)) per axis. Returns that factor for
+    the first ``len(kernel) // 2`` rows and columns (the last ones mirror
+    them); frames narrower than the kernel get factors of 1.
+    """
+    half = len(kernel) // 2
+    gains = []
+    for length in (rows, cols):
+        g = np.ones(half, np.float32)
+        if length > 2 * half:
+            for i in range(half):
+                folded = np.zeros(length)
+                for t, k in zip(range(-half, half + 1), kernel, strict=True):
+                    j = i + t
+                    folded[-j - 1 if j < 0 else j] += k
+                g[i] = np.sqrt(np.sum(folded ** 2) / np.sum(kernel ** 2))
+        gains.append(g)
+    return gains[0], gains[1]
+
+
+class DefaultDetector:
+    """Fixed-memory star detector; see the module docstring for the stages."""
+
+    def __init__(self, cfg: DetectConfig, shape: tuple[int, int], bit_depth: int) -> None:
+        self.cfg = cfg
+        sigma = effective_sigma(cfg.psf_sigma_px)
+        self.sigma = sigma
+        self.radius = int(math.ceil(3.0 * sigma))
+        blend = self.radius if cfg.blend_radius_px is None else int(cfg.blend_radius_px)
+        layout = PaddedLayout(shape, max(self.radius, blend) + 1)
+        self.layout = layout
+        self.input = FrameInput(shape, bit_depth, min_size=3, layout=layout)
+        self.saturation = (self.input.full_scale if cfg.saturation_adu is None
+                           else float(cfg.saturation_adu))
+        self.table = StarTable(cfg.max_stars)
+        self.timer = StageTimer()
+        self.grid = BackgroundGrid(layout, cfg.background_tile_px, cfg.background_step_px,
+                                   max(cfg.max_impulses, cfg.max_candidates))
+        grid_shape = self.grid.grid_shape
+        self.level = np.zeros(grid_shape, np.float32)        # raw background, ADU
+        self.noise = np.zeros(grid_shape, np.float32)        # raw pixel noise, ADU
+        self.residual = np.zeros(grid_shape, np.float32)     # filtered level left, ADU
+        self.noise_f = np.zeros(grid_shape, np.float32)      # filtered noise, ADU
+        self.threshold_grid = np.zeros(grid_shape, np.float32)
+        self.bg_pad, self.bg = layout.buffer(np.float32)
+        self.filt_pad, self.filt = layout.buffer(np.float32)
+        self.threshold = np.zeros(self.input.shape, np.float32)
+        contrast = (cfg.impulse_contrast if cfg.impulse_contrast is not None
+                    else 0.5 * (1.0 + psf_contrast(cfg.psf_sigma_px)))
+        self.impulses = ImpulseFilter(layout, cfg.impulse_sigma, contrast, cfg.max_impulses)
+        k = 2 * int(round(2.5 * sigma)) + 1
+        self.ksize = (k, k)
+        kernel = cv2.getGaussianKernel(k, sigma, cv2.CV_64F).ravel()
+        self.filter_gain = float(np.sum(kernel ** 2))  # filtered / pixel noise, white noise
+        self.edge_gain = _reflected_noise_gain(kernel, layout.rows, layout.cols)
+        self.peaks = PeakFinder(layout, blend, cfg.deblend_dip_sigma, cfg.max_pixels_above,
+                                cfg.max_candidates)
+        self.centroider = WindowedCentroider(
+            layout.stride, self.radius, sigma, gain=2.0, iterations=cfg.centroid_iterations,
+            tolerance=cfg.centroid_tolerance_px, max_shift=1.5, capacity=cfg.max_candidates)
+        self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
+        self.cand_noise = np.zeros(cfg.max_candidates, np.float32)
+        self.cand_level = np.zeros(cfg.max_candidates, np.float32)
+        self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
+                         "sharp_spots": 0, "candidates": 0}
+
+    def _noise_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
+        return self.grid.at(self.noise, flat, out)
+
+    def _noise_map(self, dst: np.ndarray) -> np.ndarray:
+        return self.grid.upsample(self.noise, dst)
+
+    def _noise_f_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
+        return self.grid.at(self.noise_f, flat, out)
+
+    def detect(self, image: np.ndarray) -> Detections:
+        """Stars in ``image`` (pixel convention: tracker.detect.result)."""
+        timer = self.timer
+        timer.reset()
+        for key in self.counters:
+            self.counters[key] = 0
+        timer.start("input")
+        reason = self.input.load(image)
+        if reason is not None:
+            timer.stop()
+            return self.table.result(0, reason, self.counters, timer.ms)
+        timer.start("background")
+        grid = self.grid
+        grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU)
+        grid.upsample(self.level, self.bg)
+        timer.start("impulses")
+        self.counters.update(self.impulses.run(
+            self.input.padded, self.input.work, self.bg_pad, self._noise_at, self._noise_map,
+            float(self.noise.min())))
+        timer.start("filter")
+        cv2.GaussianBlur(self.input.work, self.ksize, self.sigma, dst=self.filt,
+                         borderType=cv2.BORDER_REFLECT)
+        cv2.subtract(self.filt, self.bg, dst=self.filt)
+        grid.stats(self.filt_pad, self.residual, self.noise_f,
+                   QUANTISATION_NOISE_ADU * self.filter_gain)
+        np.multiply(self.noise_f, self.cfg.threshold_sigma, out=self.threshold_grid)
+        np.add(self.threshold_grid, self.residual, out=self.threshold_grid)
+        grid.upsample(self.threshold_grid, self.threshold)
+        self._raise_edges()
+        timer.start("peaks")
+        n = self.peaks.find(self.filt_pad, self.filt, self.threshold, self._noise_f_at)
+        self.counters["candidates"] = n
+        timer.start("centroid")
+        count = self._measure(n)
+        timer.stop()
+        reason = Reason.CROWDED if self.peaks.crowded else None
+        return self.table.result(count, reason, self.counters, timer.ms)
+
+    def _raise_edges(self) -> None:
+        """Scale the threshold near the borders, where the reflected filter has more noise."""
+        top, left = self.edge_gain
+        r = len(top)
+        t = self.threshold
+        for strip, gain in ((t[:r, :], top[:, None]), (t[-r:, :], top[::-1, None]),
+                            (t[:, :r], left[None, :]), (t[:, -r:], left[None, ::-1])):
+            np.multiply(strip, gain, out=strip)
+
+    def _measure(self, n: int) -> int:
+        """Centroid the candidates, reject sharp spots, fill the star table."""
+        if n == 0:
+            return 0
+        cand = self.peaks.cand[:n]
+        noise, level = self.cand_noise[:n], self.cand_level[:n]
+        self.grid.at(self.noise, cand, noise)
+        self.grid.at(self.residual, cand, level)
+        v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level)
+        sharp = (v["snr"] >= self.cfg.sharp_min_snr) & (
+            v["size"] < self.cfg.sharp_size_ratio * self.expected_size)
+        n_sharp = int(np.count_nonzero(sharp))
+        self.counters["sharp_spots"] = n_sharp
+        self.counters["cosmic_rays"] += n_sharp
+        keep = np.flatnonzero(~sharp)[: self.table.capacity]
+        count = len(keep)
+        rows, cols = self.layout.frame_position(cand[keep])
+        s = self.table.stars
+        s["x"][:count] = cols + v["x0"][keep]
+        s["y"][:count] = rows + v["y0"][keep]
+        s["flux"][:count] = v["flux"][keep]
+        s["peak"][:count] = v["peak"][keep]
+        s["snr"][:count] = v["snr"][keep]
+        s["npix"][:count] = v["npix"][keep]
+        flags = np.zeros(count, np.uint16)
+        h, w = self.input.shape
+        r = self.radius
+        flags[(cols < r) | (rows < r) | (cols > w - 1 - r) | (rows > h - 1 - r)] |= StarFlag.EDGE
+        flags[v["raw_peak"][keep] >= self.saturation] |= StarFlag.SATURATED
+        flags[(v["ellipticity"][keep] > self.cfg.elongation_max)
+              & (v["snr"][keep] >= self.cfg.sharp_min_snr)] |= StarFlag.ELONGATED
+        flags[self.peaks.blended[:n][keep]] |= StarFlag.BLENDED
+        s["flags"][:count] = flags
+        return count

@@ -1,0 +1,83 @@
+"""Checking a frame and copying it into a detector's working buffer.
+
+Every detection method starts here, so bad input is handled in one place and
+the same way: :meth:`FrameInput.load` never raises; it returns a reason code
+(see :class:`~tracker.detect.result.Detections`) or None, and on None the
+frame's pixels are in ``FrameInput.work`` as float32 ADU.
+
+Accepted frames are 2-D arrays of the detector's shape, of an unsigned or
+signed integer or a floating dtype (floats are taken as ADU, the same scale as
+the integer frames). Non-contiguous and read-only arrays are fine: the frame
+is only read, and the copy into ``work`` takes any strides. The copy
+allocates nothing.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from tracker.detect.layout import PaddedLayout
+
+__all__ = ["FrameInput", "Reason"]
+
+
+class Reason:
+    """Reason codes for frames that give no or flagged results."""
+
+    BAD_DTYPE = "bad_dtype"          # not a real-valued numeric array
+    WRONG_SHAPE = "wrong_shape"      # not 2-D, or not the detector's shape
+    TOO_SMALL = "too_small"          # fewer rows or columns than a star needs
+    NON_FINITE = "non_finite"        # NaN or infinity in a float frame
+    EMPTY = "empty"                  # every pixel <= 0
+    FLAT = "flat"                    # every pixel the same value
+    SATURATED = "saturated"          # every pixel at full scale
+    TOO_MANY = "too_many"            # more candidates than max_stars; brightest kept
+    CROWDED = "crowded"              # too many pixels above threshold; threshold raised
+
+
+_KINDS = ("u", "i", "f")
+
+
+class FrameInput:
+    """Validates frames of one shape and holds their float32 copy.
+
+    ``shape`` is (rows, cols); ``bit_depth`` sets full scale,
+    ``2**bit_depth - 1`` ADU. ``min_size`` is the smallest number of rows and
+    columns a frame must have to be searched at all (smaller detectors return
+    ``too_small`` for every frame). With a ``layout``, ``work`` is the
+    interior view of the padded buffer ``padded``; without, both are one
+    contiguous array.
+    """
+
+    def __init__(self, shape: tuple[int, int], bit_depth: int, min_size: int = 3,
+                 layout: PaddedLayout | None = None) -> None:
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.full_scale = float(2 ** int(bit_depth) - 1)
+        self.min_size = int(min_size)
+        if layout is None:
+            self.padded = self.work = np.zeros(self.shape, np.float32)
+        else:
+            self.padded, self.work = layout.buffer(np.float32)
+        self.lo = 0.0
+        self.hi = 0.0
+
+    def load(self, image: object) -> str | None:
+        """Copy ``image`` into ``work``; a reason code if it cannot be searched."""
+        if not isinstance(image, np.ndarray) or image.dtype.kind not in _KINDS:
+            return Reason.BAD_DTYPE
+        if image.ndim != 2 or image.shape != self.shape:
+            return Reason.WRONG_SHAPE
+        if min(self.shape) < self.min_size:
+            return Reason.TOO_SMALL
+        np.copyto(self.work, image, casting="unsafe")
+        if image.dtype.kind == "f" and not cv2.checkRange(self.work)[0]:
+            return Reason.NON_FINITE
+        self.lo, self.hi, _, _ = cv2.minMaxLoc(self.work)
+        if self.hi <= 0.0:
+            return Reason.EMPTY
+        if self.lo >= self.full_scale:
+            return Reason.SATURATED
+        if self.hi == self.lo:
+            return Reason.FLAT
+        return None

@@ -1,0 +1,60 @@
+"""Padded frame buffers and sparse pixel lists.
+
+Every full-size buffer of a detector has the same layout: the frame's
+(rows, cols) pixels sit inside a zero border of ``pad`` pixels, and rows are
+``stride`` elements long, a multiple of 8 so that a uint8 mask can be
+scanned eight pixels at a time as uint64 words. A pixel is addressed by its
+flat index into such a buffer, the same number in every buffer, so that
+windows around stars near the edge need no bounds checks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["PaddedLayout"]
+
+
+class PaddedLayout:
+    """Geometry of padded buffers for frames of ``shape`` (rows, cols)."""
+
+    def __init__(self, shape: tuple[int, int], pad: int) -> None:
+        self.rows, self.cols = int(shape[0]), int(shape[1])
+        self.pad = int(pad)
+        self.stride = -(-(self.cols + 2 * self.pad) // 8) * 8
+        self.full_shape = (self.rows + 2 * self.pad, self.stride)
+
+    def buffer(self, dtype: type) -> tuple[np.ndarray, np.ndarray]:
+        """A zeroed padded array and its (rows, cols) interior view."""
+        full = np.zeros(self.full_shape, dtype)
+        p = self.pad
+        return full, full[p:p + self.rows, p:p + self.cols]
+
+    def flat_index(self, row: np.ndarray, col: np.ndarray) -> np.ndarray:
+        """Flat indices of frame pixels (row, col) in a padded buffer."""
+        return (np.asarray(row) + self.pad) * self.stride + np.asarray(col) + self.pad
+
+    def frame_position(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(row, col) in the frame of padded flat indices."""
+        rows, cols = np.divmod(flat, self.stride)
+        return rows - self.pad, cols - self.pad
+
+    @staticmethod
+    def nonzero(mask_full: np.ndarray, out: np.ndarray) -> int:
+        """Flat indices of the nonzero bytes of a padded uint8 mask into ``out``.
+
+        Returns how many there are; when that exceeds ``len(out)`` nothing is
+        written. The scan reads eight pixels per step; its temporaries are
+        proportional to the number of nonzero pixels, not to the frame.
+        """
+        flat = mask_full.ravel()
+        words = np.flatnonzero(flat.view(np.uint64))
+        if len(words) == 0:
+            return 0
+        octets = flat.reshape(-1, 8)[words]
+        hits = np.flatnonzero(octets)
+        n = len(hits)
+        if n <= len(out):
+            np.multiply(words[hits >> 3], 8, out=out[:n])
+            np.add(out[:n], hits & 7, out=out[:n])
+        return n

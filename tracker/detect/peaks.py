@@ -1,0 +1,189 @@
+"""Candidate stars: local maxima of the matched-filtered image above a noise threshold.
+
+The background-subtracted, impulse-cleaned frame is convolved with a
+Gaussian of the PSF's sigma (the matched filter for a Gaussian PSF in
+background noise: it maximises a point source's SNR). A pixel is a
+candidate when its filtered value exceeds ``threshold`` (an image of
+``k`` times the filtered noise, per pixel) and is a local maximum: strictly
+above the four neighbours met before it in raster order and not below the
+four after it, so a flat top (a saturated star) gives one candidate, not a
+plateau of them.
+
+Close pairs: each candidate is compared with the brightest brighter
+candidate within ``radius`` px. It is kept as a separate star only if the
+filtered image dips between the two, at 1/4, 1/2 and 3/4 of the way, by
+at least ``dip_sigma`` times the filtered noise below the fainter peak;
+otherwise it is a bump on the brighter star's profile and is dropped.
+Kept candidates with another kept candidate within ``radius`` are marked
+blended.
+
+Only pixels above the threshold are visited (gathered into buffers of
+``pixel_capacity`` entries). When more pixels than that exceed it (a frame
+washed by light), the threshold is doubled until they fit and the frame is
+marked crowded.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from tracker.detect.layout import PaddedLayout
+
+__all__ = ["PeakFinder"]
+
+_ORDER = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
+_BEFORE = 4
+_LINE_STEPS = (0.25, 0.5, 0.75)
+_MAX_DOUBLINGS = 12
+_NONE = np.iinfo(np.int32).max
+
+
+class PeakFinder:
+    """Local maxima of a filtered image held in padded buffers of ``layout``."""
+
+    def __init__(self, layout: PaddedLayout, radius: int, dip_sigma: float,
+                 pixel_capacity: int, capacity: int) -> None:
+        self.layout = layout
+        self.stride = layout.stride
+        self.dip_sigma = float(dip_sigma)
+        self.pixel_capacity = int(pixel_capacity)
+        self.capacity = int(capacity)
+        self.mask_pad, self.mask = layout.buffer(np.uint8)
+        self.pixels = np.zeros(self.pixel_capacity, np.intp)
+        self.pixel_values = np.zeros(self.pixel_capacity, np.float32)
+        self.neighbour_index = np.zeros((self.pixel_capacity, 8), np.intp)
+        self.neighbours = np.zeros((self.pixel_capacity, 8), np.float32)
+        self.before = np.zeros(self.pixel_capacity, np.float32)
+        self.after = np.zeros(self.pixel_capacity, np.float32)
+        self.is_max = np.zeros(self.pixel_capacity, np.bool_)
+        self.tmp = np.zeros(self.pixel_capacity, np.bool_)
+        self.offsets8 = np.array([dy * self.stride + dx for dy, dx in _ORDER], np.intp)
+        # Neighbourhood for pairs: every offset within radius, with the line samples to it.
+        dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+        keep = (dy ** 2 + dx ** 2 <= radius ** 2) & ((dy != 0) | (dx != 0))
+        dy, dx = dy[keep], dx[keep]
+        self.pair_offsets = (dy * self.stride + dx).astype(np.intp)
+        line = [np.rint(t * dy) * self.stride + np.rint(t * dx) for t in _LINE_STEPS]
+        self.line_offsets = np.stack(line, axis=1).astype(np.intp)  # (P, 3)
+        p = len(self.pair_offsets)
+        self.rank = np.zeros(layout.full_shape[0] * self.stride, np.int32)
+        self.cand = np.zeros(self.capacity, np.intp)
+        self.cand_values = np.zeros(self.capacity, np.float32)
+        self.cand_noise = np.zeros(self.capacity, np.float32)
+        self.pair_index = np.zeros((self.capacity, p), np.intp)
+        self.pair_rank = np.zeros((self.capacity, p), np.int32)
+        self.nearest = np.zeros(self.capacity, np.intp)
+        self.line_index = np.zeros((self.capacity, len(_LINE_STEPS)), np.intp)
+        self.line_values = np.zeros((self.capacity, len(_LINE_STEPS)), np.float32)
+        self.saddle = np.zeros(self.capacity, np.float32)
+        self.keep = np.zeros(self.capacity, np.bool_)
+        self.blended = np.zeros(self.capacity, np.bool_)
+        self.ranks = np.arange(1, self.capacity + 1, dtype=np.int32)
+        self.crowded = False
+        self._n_pixels = 0
+
+    def find(self, filt_pad: np.ndarray, filt: np.ndarray, threshold: np.ndarray,
+             noise_at) -> int:
+        """Candidates into ``cand[:n]`` (padded flat indices, brightest first); returns n.
+
+        ``filt`` is the interior view of ``filt_pad``; ``threshold`` (frame
+        shape) the detection level in filtered ADU (doubled in place when
+        crowded); ``noise_at(flat, out)`` gives the filtered noise at padded
+        flat indices. Sets ``blended[:n]`` and ``crowded``.
+        """
+        self.crowded = False
+        n = self._above(filt, threshold)
+        n = self._local_maxima(n, filt_pad)
+        n = self._rank(n, noise_at)
+        return self._deblend(n, filt_pad)
+
+    def _above(self, filt: np.ndarray, threshold: np.ndarray) -> int:
+        cv2.compare(filt, threshold, cv2.CMP_GT, dst=self.mask)
+        n = self.layout.nonzero(self.mask_pad, self.pixels)
+        doublings = 0
+        while n > self.pixel_capacity and doublings < _MAX_DOUBLINGS:
+            self.crowded = True
+            np.multiply(threshold, 2.0, out=threshold)
+            cv2.compare(filt, threshold, cv2.CMP_GT, dst=self.mask)
+            n = self.layout.nonzero(self.mask_pad, self.pixels)
+            doublings += 1
+        if n > self.pixel_capacity:
+            n = 0
+        self._n_pixels = n
+        return n
+
+    def _local_maxima(self, n: int, filt_pad: np.ndarray) -> int:
+        if n == 0:
+            return 0
+        flat = filt_pad.ravel()
+        idx = self.pixels[:n]
+        v = self.pixel_values[:n]
+        np.take(flat, idx, out=v, mode="clip")
+        nb_index = self.neighbour_index[:n]
+        np.add(idx[:, None], self.offsets8[None, :], out=nb_index)
+        nb = self.neighbours[:n]
+        np.take(flat, nb_index, out=nb, mode="clip")
+        before, after = self.before[:n], self.after[:n]
+        np.max(nb[:, :_BEFORE], axis=1, out=before)
+        np.max(nb[:, _BEFORE:], axis=1, out=after)
+        is_max, tmp = self.is_max[:n], self.tmp[:n]
+        np.greater(v, before, out=is_max)
+        np.greater_equal(v, after, out=tmp)
+        np.logical_and(is_max, tmp, out=is_max)
+        return int(np.count_nonzero(is_max))
+
+    def _rank(self, m: int, noise_at) -> int:
+        """Maxima sorted by filtered value, brightest first, at most ``capacity``."""
+        if m == 0:
+            return 0
+        n_px = self._n_pixels
+        maxima = np.compress(self.is_max[:n_px], self.pixels[:n_px])
+        values = np.compress(self.is_max[:n_px], self.pixel_values[:n_px])
+        order = np.argsort(-values, kind="stable")[: self.capacity]
+        if m > self.capacity:
+            self.crowded = True
+        n = len(order)
+        np.take(maxima, order, out=self.cand[:n])
+        np.take(values, order, out=self.cand_values[:n])
+        noise_at(self.cand[:n], self.cand_noise[:n])
+        return n
+
+    def _deblend(self, n: int, filt_pad: np.ndarray) -> int:
+        """Drop bumps on brighter stars; mark close pairs blended; compact; returns count."""
+        if n == 0:
+            return 0
+        cand = self.cand[:n]
+        rank = self.rank
+        np.put(rank, cand, self.ranks[:n], mode="clip")
+        pair_index = self.pair_index[:n]
+        np.add(cand[:, None], self.pair_offsets[None, :], out=pair_index)
+        pr = self.pair_rank[:n]
+        np.take(rank, pair_index, out=pr, mode="clip")
+        # a neighbour counts if it is a candidate (rank > 0) ranked before this one
+        not_brighter = (pr == 0) | (pr >= self.ranks[:n, None])
+        np.copyto(pr, _NONE, where=not_brighter)
+        nearest = self.nearest[:n]
+        np.argmin(pr, axis=1, out=nearest)
+        has = pr[np.arange(n), nearest] != _NONE
+        line_index = self.line_index[:n]
+        np.add(cand[:, None], self.line_offsets[nearest], out=line_index)
+        line = self.line_values[:n]
+        np.take(filt_pad.ravel(), line_index, out=line, mode="clip")
+        saddle = self.saddle[:n]
+        np.min(line, axis=1, out=saddle)
+        values, noise = self.cand_values[:n], self.cand_noise[:n]
+        np.minimum(saddle, values, out=saddle)
+        keep = self.keep[:n]
+        np.greater_equal(values - saddle, self.dip_sigma * noise, out=keep)
+        np.logical_or(keep, ~has, out=keep)
+        # blended: another kept candidate within the radius
+        np.put(rank, cand, keep.view(np.uint8), mode="clip")
+        np.take(rank, pair_index, out=pr, mode="clip")
+        np.put(rank, cand, 0, mode="clip")
+        blended = self.blended[:n]
+        np.greater(np.max(pr, axis=1), 0, out=blended)
+        k = int(np.count_nonzero(keep))
+        for arr in (self.cand, self.cand_values, self.cand_noise, self.blended):
+            arr[:k] = np.compress(keep, arr[:n])
+        return k

@@ -1,0 +1,22 @@
+"""The fixed-size star table a detector owns and the results it hands out."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker.detect.result import STAR_DTYPE, Detections
+
+__all__ = ["StarTable"]
+
+
+class StarTable:
+    """``capacity`` rows of :data:`STAR_DTYPE`, reused frame after frame."""
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = int(capacity)
+        self.stars = np.zeros(self.capacity, STAR_DTYPE)
+
+    def result(self, count: int, reason: str | None, counters: dict,
+               stages_ms: dict) -> Detections:
+        """Detections viewing the first ``count`` rows (valid until the next frame)."""
+        return Detections(self.stars[:count], reason, counters, stages_ms)

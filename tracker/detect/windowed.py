@@ -1,0 +1,157 @@
+"""Iterative Gaussian-windowed centroid, flux, SNR and shape for many stars at once.
+
+Why this estimator: for a Gaussian PSF in background-limited noise the
+maximum-likelihood position solves sum_i S_i (x_i - x) P(x_i - x) = 0, which
+is exactly the fixed point of a centroid weighted by the PSF centred on
+the estimate. Iterating that weighted centroid therefore reaches the
+Cramer-Rao bound where the faint stars live, without a nonlinear fit, and
+is vectorised over all stars of a frame with fixed-size buffers. For
+bright, photon-limited stars it stays close to the bound (its weights
+are not 1/variance, which costs a few per cent).
+
+Each step moves the estimate by ``gain`` times the offset of the weighted
+centroid from the window centre. For a Gaussian spot of sigma s and weight
+sigma w that offset is (true - current) s^2 / (s^2 + w^2), so with
+gain = 1 + w^2 / s^2 one step lands on a noise-free Gaussian's centre
+(SExtractor's XWIN uses the same factor of 2 for w = s). Offsets are clamped
+to ``max_shift`` px from the candidate pixel.
+
+Window: the (2r+1)^2 pixels around the candidate pixel in the padded,
+background-subtracted image, r = ``radius``.
+Results per star (all in ADU of the background-subtracted image):
+
+* ``dx, dy``: offset of the centre from the candidate pixel, px;
+* ``flux``: sum over the window;
+* ``weighted``: sum(W S) and ``snr`` = sum(W S) / (noise sqrt(sum W^2)),
+  the matched-filter SNR at the centroid against background noise only;
+* ``size``: weighted second moment Mxx + Myy, px^2, and ``ellipticity``
+  sqrt((Mxx - Myy)^2 + 4 Mxy^2) / (Mxx + Myy);
+* ``peak``: largest pixel of the central 3x3, ``raw_peak`` the same before
+  background subtraction;
+* ``npix``: window pixels more than 3 noise above the background.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["WindowedCentroider"]
+
+
+class WindowedCentroider:
+    """Gaussian-windowed centroids in a padded image with rows of ``stride`` pixels."""
+
+    def __init__(self, stride: int, radius: int, weight_sigma: float, gain: float,
+                 iterations: int, tolerance: float, max_shift: float, capacity: int) -> None:
+        dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+        self.offsets = (dy * stride + dx).ravel().astype(np.intp)
+        self.dx = dx.ravel().astype(np.float64)
+        self.dy = dy.ravel().astype(np.float64)
+        centre = (np.abs(dx) <= 1) & (np.abs(dy) <= 1)
+        self.centre = np.flatnonzero(centre.ravel())
+        k = len(self.offsets)
+        self.inv_two_w2 = 1.0 / (2.0 * weight_sigma ** 2)
+        self.gain = float(gain)
+        self.iterations = int(iterations)
+        self.tolerance = float(tolerance)
+        self.max_shift = float(max_shift)
+        c = int(capacity)
+        self.index = np.zeros((c, k), np.intp)
+        self.win = np.zeros((c, k), np.float32)
+        self.bgwin = np.zeros((c, k), np.float32)
+        self.s = np.zeros((c, k), np.float64)
+        self.ex = np.zeros((c, k), np.float64)
+        self.ey = np.zeros((c, k), np.float64)
+        self.w = np.zeros((c, k), np.float64)
+        self.ws = np.zeros((c, k), np.float64)
+        self.t = np.zeros((c, k), np.float64)
+        names = ("x0", "y0", "sum_ws", "sum_x", "sum_y", "step", "flux", "weighted", "sum_w2",
+                 "mxx", "myy", "mxy", "size", "ellipticity", "snr", "peak", "raw_peak", "npix")
+        self.v = {name: np.zeros(c, np.float64) for name in names}
+
+    def measure(self, n: int, image_pad: np.ndarray, bg_pad: np.ndarray, cand: np.ndarray,
+                noise: np.ndarray, level: np.ndarray) -> dict:
+        """Measure the ``n`` stars at padded flat indices ``cand[:n]``; views of length n.
+
+        ``image_pad`` holds the frame and ``bg_pad`` its background, both padded
+        the same way; ``level`` (n,) a further background offset per star and
+        ``noise`` (n,) the background noise at each star, ADU.
+        """
+        v = {name: arr[:n] for name, arr in self.v.items()}
+        if n == 0:
+            return v
+        idx = self.index[:n]
+        np.add(cand[:n, None], self.offsets[None, :], out=idx)
+        win, bgwin, s = self.win[:n], self.bgwin[:n], self.s[:n]
+        np.take(image_pad.ravel(), idx, out=win, mode="clip")
+        np.take(bg_pad.ravel(), idx, out=bgwin, mode="clip")
+        np.subtract(win, bgwin, out=s)
+        np.subtract(s, level[:n, None], out=s)
+        x0, y0 = v["x0"], v["y0"]
+        x0.fill(0.0)
+        y0.fill(0.0)
+        for _ in range(self.iterations):
+            self._weights(n, x0, y0)
+            step = v["step"]
+            self._shift(n, v["sum_x"], self.ex, v, x0)
+            np.abs(v["sum_x"], out=step)
+            biggest = float(step.max())
+            self._shift(n, v["sum_y"], self.ey, v, y0)
+            np.abs(v["sum_y"], out=step)
+            if max(biggest, float(step.max())) < self.tolerance:
+                break
+        self._weights(n, x0, y0)
+        self._photometry(n, v, noise)
+        return v
+
+    def _weights(self, n: int, x0: np.ndarray, y0: np.ndarray) -> None:
+        """w = exp(-((dx - x0)^2 + (dy - y0)^2) / (2 w^2)); ws = w * s."""
+        ex, ey, w, t = self.ex[:n], self.ey[:n], self.w[:n], self.t[:n]
+        np.subtract(self.dx[None, :], x0[:, None], out=ex)
+        np.subtract(self.dy[None, :], y0[:, None], out=ey)
+        np.multiply(ex, ex, out=w)
+        np.multiply(ey, ey, out=t)
+        np.add(w, t, out=w)
+        np.multiply(w, -self.inv_two_w2, out=w)
+        np.exp(w, out=w)
+        np.multiply(w, self.s[:n], out=self.ws[:n])
+
+    def _shift(self, n: int, step: np.ndarray, e: np.ndarray, v: dict, pos: np.ndarray) -> None:
+        """pos += gain * sum(ws e) / sum(ws), clamped; step holds the move."""
+        ws = self.ws[:n]
+        sum_ws = v["sum_ws"]
+        np.sum(ws, axis=1, out=sum_ws)
+        np.einsum("ij,ij->i", ws, e[:n], out=step)
+        # a window whose weighted sum is not positive (noise) keeps its position
+        np.divide(step, sum_ws, out=step, where=sum_ws > 0)
+        step[sum_ws <= 0] = 0.0
+        np.multiply(step, self.gain, out=step)
+        np.add(pos, step, out=step)
+        np.clip(step, -self.max_shift, self.max_shift, out=step)
+        np.subtract(step, pos, out=step)
+        np.add(pos, step, out=pos)
+
+    def _photometry(self, n: int, v: dict, noise: np.ndarray) -> None:
+        s, w, ws, t = self.s[:n], self.w[:n], self.ws[:n], self.t[:n]
+        ex, ey = self.ex[:n], self.ey[:n]
+        np.sum(s, axis=1, out=v["flux"])
+        np.sum(ws, axis=1, out=v["weighted"])
+        np.einsum("ij,ij->i", w, w, out=v["sum_w2"])
+        np.sqrt(v["sum_w2"], out=v["snr"])
+        np.multiply(v["snr"], noise[:n], out=v["snr"])
+        np.divide(v["weighted"], v["snr"], out=v["snr"])
+        denom = np.maximum(v["weighted"], 1e-12)
+        np.multiply(ws, ex, out=t)
+        np.einsum("ij,ij->i", t, ex, out=v["mxx"])
+        np.einsum("ij,ij->i", t, ey, out=v["mxy"])
+        np.multiply(ws, ey, out=t)
+        np.einsum("ij,ij->i", t, ey, out=v["myy"])
+        for key in ("mxx", "myy", "mxy"):
+            np.divide(v[key], denom, out=v[key])
+        np.add(v["mxx"], v["myy"], out=v["size"])
+        e = np.hypot(v["mxx"] - v["myy"], 2.0 * v["mxy"])
+        np.divide(e, np.maximum(v["size"], 1e-12), out=v["ellipticity"])
+        np.max(s[:, self.centre], axis=1, out=v["peak"])
+        np.max(self.win[:n, self.centre], axis=1, out=v["raw_peak"])
+        np.greater(s, 3.0 * noise[:n, None], out=self.t[:n])
+        np.sum(self.t[:n], axis=1, out=v["npix"])

@@ -1,0 +1,411 @@
+"""The serial link on the tracker's side: paced, prioritised writer; command reader.
+
+The frame loop calls :meth:`Link.send_attitude`, :meth:`Link.send_centroids`
+and :meth:`Link.send_status`. None of them blocks: each checks the message's
+output rate, encodes, and puts the frame in a bounded queue. A writer thread
+takes frames highest class first (ACK/NACK, then ATTITUDE, CENTROIDS, STATUS)
+and paces itself to ``bandwidth_fraction * baudrate / 10`` bytes per second,
+so the kernel's transmit buffer stays short and the queue, not the order of
+arrival, decides what goes first. When a class's queue is full its oldest
+frame is dropped; a frame older than ``max_age_ms`` when its turn comes is
+dropped too. Every drop is counted.
+
+A reader thread decodes commands from the FC and answers each with ACK or
+NACK. PING and SET_OUTPUT are handled here; the others go to the service's
+:class:`CommandHandler`, called on the reader thread. Commands with a bad
+CRC, unknown id, wrong length or out-of-range field are NACKed without
+calling it. If the port fails (open, read or write), it is closed and
+reopened after ``reopen_backoff_s``, doubling up to ``reopen_backoff_max_s``.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
+import serial
+
+from tracker.config import LinkConfig
+from tracker.protocol.budget import BITS_PER_BYTE, bytes_per_second
+from tracker.protocol.decoder import Packet, Rejection, StreamDecoder
+from tracker.protocol.encoder import Encoder
+from tracker.protocol.messages import (
+    BY_ID,
+    AttitudeFlag,
+    Direction,
+    Mode,
+    MsgId,
+    Reason,
+)
+
+__all__ = ["CommandHandler", "Link", "OutputGate"]
+
+log = logging.getLogger(__name__)
+
+_PORT_ERRORS = (serial.SerialException, OSError, TypeError, ValueError)
+_CLASSES = ("reply", "attitude", "centroids", "status")   # index = MessageDef.priority
+_NAN = float("nan")
+
+
+class CommandHandler(Protocol):
+    """What the service implements to obey the FC. Called on the link's reader thread.
+
+    Keep each call short (store the request for the frame loop to apply) and
+    return a :class:`Reason`: ``Reason.OK`` for ACK, ``Reason.REJECTED`` to
+    refuse. Values have already been range-checked against the ICD.
+    """
+
+    def set_mode(self, mode: Mode) -> Reason: ...
+
+    def set_exposure(self, exposure_us: int) -> Reason: ...
+
+    def set_gain(self, gain: float) -> Reason: ...
+
+    def time_sync(self, offset_ns: int) -> Reason:
+        """FC clock = tracker monotonic clock + offset_ns (transmission time removed)."""
+
+    def status(self) -> dict:
+        """The STATUS fields (except link_drops, link_reopens, rx_rejects, which the
+        link fills in), for REQUEST_STATUS."""
+
+
+class OutputGate:
+    """Decides whether a telemetry message is due, given its output rate in Hz."""
+
+    def __init__(self, rates_hz: dict[int, float]) -> None:
+        self.rates_hz = dict(rates_hz)
+        self._next = dict.fromkeys(self.rates_hz, 0)
+
+    def due(self, msg_id: int, now_ns: int) -> bool:
+        """True if msg_id should be sent at now_ns (and books it)."""
+        rate = self.rates_hz[msg_id]
+        if rate <= 0:
+            return False
+        period = int(1e9 / rate)
+        nxt = self._next[msg_id]
+        if now_ns < nxt - period // 20:          # 5 % early is on time (frame jitter)
+            return False
+        self._next[msg_id] = now_ns + period if now_ns > nxt + period else nxt + period
+        return True
+
+
+class _Queue:
+    """Bounded queues, one per class; the oldest of a full class is dropped."""
+
+    def __init__(self, capacities: tuple[int, ...]) -> None:
+        self.q = [collections.deque() for _ in capacities]
+        self.cap = capacities
+        self.cond = threading.Condition()
+
+    def put(self, cls: int, item) -> bool:
+        """Queue item; False if that pushed out an older one."""
+        with self.cond:
+            q = self.q[cls]
+            full = len(q) >= self.cap[cls]
+            if full:
+                q.popleft()
+            q.append(item)
+            self.cond.notify()
+            return not full
+
+
+class Link:
+    """The tracker's end of the serial link; see the module docstring.
+
+    Usage::
+
+        with Link(cfg.link, handler) as link:
+            link.send_attitude(frame_id=n, t_ns=t, q=q, sigma_xy_arcsec=5.0, ...)
+
+    ``open_port`` (tests) replaces the pyserial opener; ``clock`` returns ns.
+    """
+
+    def __init__(self, cfg: LinkConfig, handler: CommandHandler | None = None, *,
+                 open_port: Callable[[], serial.SerialBase] | None = None,
+                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+        self.cfg = cfg
+        self.handler = handler
+        self._open_port = open_port or self._open_serial
+        self._clock = clock
+        self.gate = OutputGate({MsgId.ATTITUDE: cfg.attitude_rate_hz,
+                                MsgId.CENTROIDS: cfg.centroids_rate_hz,
+                                MsgId.STATUS: cfg.status_rate_hz})
+        self.rate_bytes_s = bytes_per_second(cfg.baudrate) * cfg.bandwidth_fraction
+        self._queue = _Queue((16, cfg.queue_attitude, cfg.queue_centroids, cfg.queue_status))
+        self._encoder = Encoder(Direction.TM)
+        self._enc_lock = threading.Lock()
+        self._decoder = StreamDecoder(Direction.TC, validate=True, keep_rejects=True)
+        self._port: serial.SerialBase | None = None
+        self._port_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._rx_t_ns = 0
+        self.counters: collections.Counter = collections.Counter()
+
+    # ---- life cycle -------------------------------------------------------
+
+    def start(self) -> Link:
+        self._stop.clear()
+        self._threads = [threading.Thread(target=self._read_loop, name="link-reader",
+                                          daemon=True),
+                         threading.Thread(target=self._write_loop, name="link-writer",
+                                          daemon=True)]
+        for t in self._threads:
+            t.start()
+        return self
+
+    def close(self, drain_s: float = 0.0) -> None:
+        """Stop the threads (after up to drain_s seconds of sending what is queued)."""
+        deadline = time.monotonic() + drain_s
+        while time.monotonic() < deadline and any(self._queue.q):
+            time.sleep(0.01)
+        self._stop.set()
+        with self._queue.cond:
+            self._queue.cond.notify_all()
+        for t in self._threads:
+            t.join(timeout=2.0)
+        with self._queue.cond:
+            for name, q in zip(_CLASSES, self._queue.q, strict=True):
+                self.counters[f"unsent_{name}"] += len(q)
+                q.clear()
+        with self._port_lock:
+            if self._port is not None:
+                self._port.close()
+                self._port = None
+
+    def __enter__(self) -> Link:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def is_open(self) -> bool:
+        return self._port is not None
+
+    # ---- the frame loop's calls -------------------------------------------
+
+    def send_attitude(self, *, frame_id: int, t_ns: int, q: np.ndarray | None,
+                      sigma_xy_arcsec: float, sigma_roll_arcsec: float, matched: int,
+                      mode: Mode, flags: int = 0, rate_dps: np.ndarray | None = None,
+                      ) -> bool:
+        """Queue ATTITUDE if due; True if queued.
+
+        q = [w, x, y, z] (v_cam = R v_icrs) or None when there is no solution
+        (sent as NaN, VALID clear). rate_dps (deg/s about camera X, Y, Z) or
+        None (NaN, RATE_VALID clear). VALID and RATE_VALID are set from these;
+        ``flags`` adds TIME_SYNCED or PREDICTED.
+        """
+        if not self.gate.due(MsgId.ATTITUDE, self._clock()):
+            return False
+        flags = int(flags) & ~(AttitudeFlag.VALID | AttitudeFlag.RATE_VALID)
+        if q is None:
+            q = (_NAN,) * 4
+        else:
+            flags |= AttitudeFlag.VALID
+        if rate_dps is None:
+            rate_dps = (_NAN,) * 3
+        else:
+            flags |= AttitudeFlag.RATE_VALID
+        return self._put(MsgId.ATTITUDE, frame_id=frame_id, t_ns=t_ns,
+                         q_w=q[0], q_x=q[1], q_y=q[2], q_z=q[3],
+                         sigma_xy_arcsec=sigma_xy_arcsec, sigma_roll_arcsec=sigma_roll_arcsec,
+                         rate_x=rate_dps[0], rate_y=rate_dps[1], rate_z=rate_dps[2],
+                         matched=min(int(matched), 0xFFFF), mode=int(mode), flags=flags)
+
+    def send_centroids(self, frame_id: int, t_ns: int, stars: np.ndarray,
+                       total: int | None = None) -> bool:
+        """Queue CENTROIDS parts for the brightest ``max_centroids`` stars if due.
+
+        stars: rows with fields x, y, flux, hip, flags (e.g. an array of
+        ``BY_ID[MsgId.CENTROIDS].item_dtype``), in any order.
+        """
+        if not self.gate.due(MsgId.CENTROIDS, self._clock()):
+            return False
+        total = len(stars) if total is None else total
+        stars = stars[np.argsort(-stars["flux"], kind="stable")[:self.cfg.max_centroids]]
+        with self._enc_lock:
+            frames = self._encoder.centroids(frame_id, t_ns, stars, total)
+        now = self._clock()
+        for f in frames:
+            self._enqueue(BY_ID[MsgId.CENTROIDS].priority, now, f)
+        return True
+
+    def send_status(self, **values) -> bool:
+        """Queue STATUS if due; values = the STATUS fields except the link's own three."""
+        if not self.gate.due(MsgId.STATUS, self._clock()):
+            return False
+        return self._put_status(values)
+
+    def stats(self) -> dict:
+        """Counters: queued_/sent_/dropped_full_/dropped_stale_/dropped_write_/unsent_<class>
+        (class: reply, attitude, centroids, status), bytes_sent,
+        port_errors, reopens, open_failures, commands, acks, nacks, rx_<decoder counter>."""
+        out = dict(self.counters)
+        out.update({f"rx_{k}": v for k, v in self._decoder.counters.items()})
+        return out
+
+    @property
+    def drops(self) -> int:
+        return sum(v for k, v in self.counters.items() if k.startswith("dropped_"))
+
+    # ---- internals ----------------------------------------------------------
+
+    def _put_status(self, values: dict) -> bool:
+        rx = self._decoder.counters
+        values = dict(values, link_drops=min(self.drops, 2**32 - 1),
+                      link_reopens=min(self.counters["reopens"], 0xFFFF),
+                      rx_rejects=min(rx["bad_crc"] + rx["unknown_id"] + rx["wrong_length"]
+                                     + rx["out_of_range"], 2**32 - 1))
+        return self._put(MsgId.STATUS, **values)
+
+    def _put(self, msg_id: MsgId, **values) -> bool:
+        with self._enc_lock:
+            frame = self._encoder.encode(msg_id, **values)
+        self._enqueue(BY_ID[msg_id].priority, self._clock(), frame)
+        return True
+
+    def _enqueue(self, cls: int, now_ns: int, frame: bytes) -> None:
+        name = _CLASSES[cls]
+        self.counters[f"queued_{name}"] += 1
+        if not self._queue.put(cls, (now_ns, frame)):
+            self.counters[f"dropped_full_{name}"] += 1
+
+    def _open_serial(self) -> serial.SerialBase:
+        return serial.serial_for_url(self.cfg.port, baudrate=self.cfg.baudrate,
+                                     timeout=self.cfg.read_timeout_s,
+                                     write_timeout=self.cfg.write_timeout_s)
+
+    def _port_failed(self, port: serial.SerialBase, exc: Exception) -> None:
+        with self._port_lock:
+            if self._port is not port:
+                return
+            self._port = None
+        self.counters["port_errors"] += 1
+        log.warning("serial port %s failed: %s; reopening", self.cfg.port, exc)
+        try:
+            port.close()
+        except _PORT_ERRORS:
+            pass
+
+    def _read_loop(self) -> None:
+        backoff = self.cfg.reopen_backoff_s
+        opened_before = False
+        while not self._stop.is_set():
+            port = self._port
+            if port is None:
+                try:
+                    port = self._open_port()
+                except _PORT_ERRORS as exc:
+                    self.counters["open_failures"] += 1
+                    log.warning("cannot open %s: %s; retry in %.2f s", self.cfg.port, exc,
+                                backoff)
+                    self._stop.wait(backoff)
+                    backoff = min(2 * backoff, self.cfg.reopen_backoff_max_s)
+                    continue
+                self.counters["reopens"] += opened_before
+                opened_before = True
+                backoff = self.cfg.reopen_backoff_s
+                with self._port_lock:
+                    self._port = port
+            try:
+                data = port.read(1)
+                if data and port.in_waiting:
+                    data += port.read(port.in_waiting)
+            except _PORT_ERRORS as exc:
+                self._port_failed(port, exc)
+                continue
+            if data:
+                self._rx_t_ns = self._clock()
+                for item in self._decoder.feed(data):
+                    if isinstance(item, Rejection):
+                        self._reply(False, item.apid, item.seq, item.reason)
+                    else:
+                        self._obey(item)
+
+    def _write_loop(self) -> None:
+        burst = max(self.rate_bytes_s * 0.02, float(max(m.max_size for m in BY_ID.values())
+                                                    + 12))
+        tokens, last = burst, self._clock()
+        max_age_ns = int(self.cfg.max_age_ms * 1e6)
+        qs = self._queue
+        while not self._stop.is_set():
+            now = self._clock()
+            tokens = min(burst, tokens + (now - last) * 1e-9 * self.rate_bytes_s)
+            last = now
+            with qs.cond:
+                cls = next((k for k, q in enumerate(qs.q) if q), None)
+                if cls is None:
+                    qs.cond.wait(0.1)
+                    continue
+                t0, frame = qs.q[cls][0]
+                if now - t0 > max_age_ns:
+                    qs.q[cls].popleft()
+                    self.counters[f"dropped_stale_{_CLASSES[cls]}"] += 1
+                    continue
+                wait = (len(frame) - tokens) / self.rate_bytes_s
+                port = self._port
+                if wait <= 0 and port is not None:
+                    qs.q[cls].popleft()
+            if port is None:
+                self._stop.wait(0.05)
+                continue
+            if wait > 0:
+                time.sleep(min(wait, 0.05))
+                continue
+            try:
+                port.write(frame)
+            except _PORT_ERRORS as exc:   # SerialTimeoutException is a SerialException
+                self.counters[f"dropped_write_{_CLASSES[cls]}"] += 1
+                self._port_failed(port, exc)
+                continue
+            tokens -= len(frame)
+            self.counters[f"sent_{_CLASSES[cls]}"] += 1
+            self.counters["bytes_sent"] += len(frame)
+
+    def _reply(self, ok: bool, cmd_id: int, seq: int, code: Reason) -> None:
+        self._put(MsgId.ACK if ok else MsgId.NACK, cmd_id=cmd_id, cmd_seq=seq,
+                  code=int(code), rx_t_ns=self._rx_t_ns)
+        self.counters["acks" if ok else "nacks"] += 1
+
+    def _obey(self, packet: Packet) -> None:
+        self.counters["commands"] += 1
+        v = packet.values
+        try:
+            code = self._apply(packet.id, v, len(packet.frame))
+        except Exception:   # a fault in the service's handler must not stop the link
+            log.exception("command %s failed", packet.name)
+            code = Reason.INTERNAL
+        code = Reason(code)
+        self._reply(code == Reason.OK, packet.id, packet.seq, code)
+        if packet.id == MsgId.REQUEST_STATUS and code == Reason.OK:
+            self._put_status(self.handler.status())
+
+    def _apply(self, msg_id: int, v: dict, frame_len: int) -> Reason:
+        if msg_id == MsgId.PING:
+            return Reason.OK
+        if msg_id == MsgId.SET_OUTPUT:
+            self.gate.rates_hz[MsgId(v["msg_id"])] = v["rate_hz"]
+            return Reason.OK
+        h = self.handler
+        if h is None:
+            return Reason.REJECTED
+        if msg_id == MsgId.SET_MODE:
+            return h.set_mode(Mode(v["mode"]))
+        if msg_id == MsgId.SET_EXPOSURE:
+            return h.set_exposure(v["exposure_us"])
+        if msg_id == MsgId.SET_GAIN:
+            return h.set_gain(v["gain"])
+        if msg_id == MsgId.TIME_SYNC:
+            # The frame's first byte left the FC one transmission time before its last arrived.
+            sent_ns = self._rx_t_ns - round(frame_len * BITS_PER_BYTE * 1e9 / self.cfg.baudrate)
+            return h.time_sync(v["fc_time_ns"] - sent_ns)
+        if msg_id == MsgId.REQUEST_STATUS:
+            return Reason.OK
+        return Reason.UNKNOWN_ID
+

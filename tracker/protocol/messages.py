@@ -1,0 +1,302 @@
+"""Every message of the serial protocol, declared once.
+
+The table :data:`MESSAGES` is the single source of truth: the encoder and the
+decoder pack and unpack with it, :mod:`tracker.protocol.docgen` renders the
+ICD's tables (docs/protocol.md) and the C header (tools/fc/) from it, and a
+test checks that both files on disk still match.
+
+Byte order is big-endian (network order) throughout. Integers are unsigned
+and in the unit given; floats are IEEE-754 binary32. There is no scaling:
+a field's value on the wire is its value in its unit.
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+__all__ = [
+    "Field", "MessageDef", "MsgId", "Mode", "Reason", "AttitudeFlag", "Direction",
+    "MESSAGES", "BY_ID", "TYPES", "MAX_STARS_PER_PACKET", "PayloadError",
+]
+
+# wire type -> (struct code, size in bytes, C type, numpy big-endian dtype)
+TYPES = {
+    "u8": ("B", 1, "uint8_t", ">u1"),
+    "u16": ("H", 2, "uint16_t", ">u2"),
+    "u32": ("I", 4, "uint32_t", ">u4"),
+    "u64": ("Q", 8, "uint64_t", ">u8"),
+    "f32": ("f", 4, "float", ">f4"),
+}
+
+MAX_STARS_PER_PACKET = 40
+
+
+class Direction(enum.IntEnum):
+    """The CCSDS packet-type bit: 0 telemetry (tracker -> FC), 1 telecommand (FC -> tracker)."""
+
+    TM = 0
+    TC = 1
+
+
+class MsgId(enum.IntEnum):
+    """Message ids; each is the packet's CCSDS APID (11 bits)."""
+
+    ATTITUDE = 0x001
+    CENTROIDS = 0x002
+    STATUS = 0x003
+    ACK = 0x010
+    NACK = 0x011
+    SET_MODE = 0x020
+    SET_EXPOSURE = 0x021
+    SET_GAIN = 0x022
+    SET_OUTPUT = 0x023
+    PING = 0x024
+    REQUEST_STATUS = 0x025
+    TIME_SYNC = 0x026
+
+
+class Mode(enum.IntEnum):
+    """Operating mode (SET_MODE, ATTITUDE.mode, STATUS.mode)."""
+
+    STANDBY = 0
+    LOST_IN_SPACE = 1
+    TRACKING = 2
+
+
+class Reason(enum.IntEnum):
+    """ACK/NACK code: 0 in every ACK, one of the others in a NACK."""
+
+    OK = 0
+    BAD_CRC = 1        # header plausible, CRC wrong; id and seq echoed may be corrupt
+    UNKNOWN_ID = 2     # CRC good, no such command
+    WRONG_LENGTH = 3   # CRC good, payload length not the command's
+    OUT_OF_RANGE = 4   # a field outside its valid range (NaN included)
+    REJECTED = 5       # valid, but refused in the tracker's present state
+    INTERNAL = 6       # the tracker failed while applying it
+
+
+class AttitudeFlag(enum.IntFlag):
+    """Bits of ATTITUDE.flags."""
+
+    VALID = 1          # the quaternion and sigmas hold a solution for this frame
+    RATE_VALID = 2     # rate_x/y/z hold a measured angular rate
+    TIME_SYNCED = 4    # t_ns is on the FC's clock (after TIME_SYNC), else the tracker's
+    PREDICTED = 8      # propagated from earlier frames, not solved from this one
+
+
+class PayloadError(ValueError):
+    """A payload that does not fit its message; ``reason`` says how."""
+
+    def __init__(self, reason: Reason, text: str) -> None:
+        super().__init__(text)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class Field:
+    """One payload field: wire type, unit, meaning, and for commands the valid values."""
+
+    name: str
+    type: str
+    unit: str
+    doc: str
+    lo: float | None = None
+    hi: float | None = None
+    choices: tuple[int, ...] | None = None
+
+    def valid(self, value) -> bool:
+        """True when value is allowed (NaN never is when a range is given)."""
+        if self.choices is not None and value not in self.choices:
+            return False
+        if self.lo is not None and not value >= self.lo:
+            return False
+        return not (self.hi is not None and not value <= self.hi)
+
+    def range_text(self) -> str:
+        if self.choices is not None:
+            return ", ".join(str(c) for c in self.choices)
+        if self.lo is not None and self.hi is not None:
+            return f"{self.lo:g} .. {self.hi:g}"
+        return ""
+
+
+@dataclass(frozen=True)
+class MessageDef:
+    """A message: id, direction, fixed fields, and optionally a repeated item group.
+
+    With ``item`` set, the fixed fields are followed by ``count`` items
+    (``count_field`` holds count, at most ``max_items``).
+    """
+
+    id: MsgId
+    direction: Direction
+    doc: str
+    fields: tuple[Field, ...]
+    item: tuple[Field, ...] = ()
+    count_field: str | None = None
+    max_items: int = 0
+    priority: int | None = None   # link queue class, 0 = first; None for commands
+
+    @property
+    def name(self) -> str:
+        return self.id.name
+
+    @cached_property
+    def head(self) -> struct.Struct:
+        return struct.Struct(">" + "".join(TYPES[f.type][0] for f in self.fields))
+
+    @cached_property
+    def item_dtype(self) -> np.dtype:
+        """Big-endian numpy dtype of one item (empty when there is no item group)."""
+        return np.dtype([(f.name, TYPES[f.type][3]) for f in self.item])
+
+    @property
+    def item_size(self) -> int:
+        return sum(TYPES[f.type][1] for f in self.item)
+
+    @property
+    def min_size(self) -> int:
+        return self.head.size
+
+    @property
+    def max_size(self) -> int:
+        return self.head.size + self.max_items * self.item_size
+
+    def pack(self, values: dict, items: np.ndarray | None = None) -> bytes:
+        """The payload of values (dict by field name) and items (rows with the item fields).
+
+        Raises ValueError naming the message if a value is missing or does not fit.
+        """
+        vals = dict(values)
+        n = 0
+        if self.item:
+            n = 0 if items is None else len(items)
+            if n > self.max_items:
+                raise ValueError(f"{self.name}: {n} items, at most {self.max_items}")
+            vals[self.count_field] = n
+        try:
+            head = self.head.pack(*(vals[f.name] for f in self.fields))
+        except KeyError as exc:
+            raise ValueError(f"{self.name}: missing field {exc.args[0]}") from None
+        except struct.error as exc:
+            raise ValueError(f"{self.name}: a value does not fit: {exc}") from None
+        if not n:
+            return head
+        body = np.empty(n, dtype=self.item_dtype)
+        for f in self.item:
+            body[f.name] = items[f.name]
+        return head + body.tobytes()
+
+    def unpack(self, payload: bytes, validate: bool = True) -> tuple[dict, np.ndarray | None]:
+        """Values and items of a payload; PayloadError (WRONG_LENGTH/OUT_OF_RANGE) if bad."""
+        if len(payload) < self.head.size:
+            raise PayloadError(Reason.WRONG_LENGTH, f"{self.name}: {len(payload)} bytes, "
+                               f"expected at least {self.head.size}")
+        values = dict(zip((f.name for f in self.fields), self.head.unpack_from(payload),
+                          strict=True))
+        items = None
+        n = values[self.count_field] if self.item else 0
+        expected = self.head.size + n * self.item_size
+        if len(payload) != expected:
+            raise PayloadError(Reason.WRONG_LENGTH, f"{self.name}: {len(payload)} bytes, "
+                               f"expected {expected}")
+        if self.item:
+            if n > self.max_items:
+                raise PayloadError(Reason.OUT_OF_RANGE, f"{self.name}: {n} items, at most "
+                                   f"{self.max_items}")
+            items = np.frombuffer(payload, dtype=self.item_dtype, count=n,
+                                  offset=self.head.size)
+        if validate:
+            for f in self.fields:
+                if not f.valid(values[f.name]):
+                    raise PayloadError(Reason.OUT_OF_RANGE, f"{self.name}.{f.name}: "
+                                       f"{values[f.name]!r} outside {f.range_text()}")
+        return values, items
+
+
+def _f(name, type_, unit, doc, **kw) -> Field:
+    return Field(name, type_, unit, doc, **kw)
+
+
+_FRAME_ID = _f("frame_id", "u32", "", "frame counter since start, wraps at 2^32")
+_T_NS = _f("t_ns", "u64", "ns", "exposure mid-time (tracker monotonic clock, or FC clock "
+           "when TIME_SYNCED)")
+_REPLY = (
+    _f("cmd_id", "u16", "", "id (APID) of the command answered"),
+    _f("cmd_seq", "u16", "", "sequence count of the command answered"),
+    _f("code", "u8", "", "reason code (0 in ACK)"),
+    _f("rx_t_ns", "u64", "ns", "tracker monotonic time when the command was received"),
+)
+_TM, _TC = Direction.TM, Direction.TC
+
+MESSAGES: tuple[MessageDef, ...] = (
+    MessageDef(MsgId.ATTITUDE, _TM, "attitude of one frame", (
+        _FRAME_ID, _T_NS,
+        _f("q_w", "f32", "", "quaternion scalar part, >= 0; v_cam = R(q) v_icrs"),
+        _f("q_x", "f32", "", "quaternion x"),
+        _f("q_y", "f32", "", "quaternion y"),
+        _f("q_z", "f32", "", "quaternion z"),
+        _f("sigma_xy_arcsec", "f32", "arcsec", "1-sigma cross-boresight error"),
+        _f("sigma_roll_arcsec", "f32", "arcsec", "1-sigma error about the boresight"),
+        _f("rate_x", "f32", "deg/s", "angular rate about camera +X; NaN unless RATE_VALID"),
+        _f("rate_y", "f32", "deg/s", "angular rate about camera +Y; NaN unless RATE_VALID"),
+        _f("rate_z", "f32", "deg/s", "angular rate about camera +Z; NaN unless RATE_VALID"),
+        _f("matched", "u16", "stars", "catalogue stars matched"),
+        _f("mode", "u8", "", "Mode"),
+        _f("flags", "u16", "", "AttitudeFlag bits"),
+    ), priority=1),
+    MessageDef(MsgId.CENTROIDS, _TM, "star centroids of one frame, brightest first, "
+               "split over parts", (
+        _FRAME_ID, _T_NS,
+        _f("part", "u8", "", "index of this packet among the frame's parts, from 0"),
+        _f("parts", "u8", "", "number of parts for this frame"),
+        _f("total", "u16", "stars", "stars detected in the frame (may exceed those sent)"),
+        _f("count", "u8", "stars", f"items in this packet, 0 .. {MAX_STARS_PER_PACKET}"),
+    ), item=(
+        _f("x", "f32", "px", "column; origin at the centre of the top-left pixel"),
+        _f("y", "f32", "px", "row; same origin"),
+        _f("flux", "f32", "ADU", "background-subtracted sum"),
+        _f("hip", "u32", "", "Hipparcos number of the matched star, 0 if none"),
+        _f("flags", "u16", "", "StarFlag bits: 1 saturated, 2 edge, 4 elongated, 8 blended"),
+    ), count_field="count", max_items=MAX_STARS_PER_PACKET, priority=2),
+    MessageDef(MsgId.STATUS, _TM, "health and settings", (
+        _f("uptime_s", "u32", "s", "time since the service started"),
+        _f("frame_rate_hz", "f32", "Hz", "frames processed per second, last few seconds"),
+        _f("exposure_us", "u32", "us", "exposure time in use"),
+        _f("gain", "f32", "x", "analogue gain in use (factor)"),
+        _f("cpu_temp_c", "f32", "degC", "SoC temperature; NaN if unknown"),
+        _f("mode", "u8", "", "Mode"),
+        _f("frames", "u32", "", "frames processed"),
+        _f("capture_faults", "u32", "", "frames lost or unreadable"),
+        _f("solve_failures", "u32", "", "frames with stars but no attitude"),
+        _f("link_drops", "u32", "", "packets dropped by the link queue"),
+        _f("link_reopens", "u16", "", "times the serial port was reopened"),
+        _f("rx_rejects", "u32", "", "FC frames dropped or NACKed"),
+        _f("last_error", "u16", "", "last error code, 0 = none (service defines codes)"),
+        _f("config_crc", "u32", "", "checksum of the effective configuration"),
+    ), priority=3),
+    MessageDef(MsgId.ACK, _TM, "command accepted", _REPLY, priority=0),
+    MessageDef(MsgId.NACK, _TM, "command refused; nothing changed", _REPLY, priority=0),
+    MessageDef(MsgId.SET_MODE, _TC, "change operating mode", (
+        _f("mode", "u8", "", "Mode", choices=tuple(Mode)),)),
+    MessageDef(MsgId.SET_EXPOSURE, _TC, "set the exposure time", (
+        _f("exposure_us", "u32", "us", "exposure time", lo=10, hi=1_000_000),)),
+    MessageDef(MsgId.SET_GAIN, _TC, "set the analogue gain", (
+        _f("gain", "f32", "x", "analogue gain factor", lo=1.0, hi=16.0),)),
+    MessageDef(MsgId.SET_OUTPUT, _TC, "set one telemetry message's output rate", (
+        _f("msg_id", "u16", "", "ATTITUDE, CENTROIDS or STATUS id",
+           choices=(MsgId.ATTITUDE, MsgId.CENTROIDS, MsgId.STATUS)),
+        _f("rate_hz", "f32", "Hz", "output rate, 0 = off", lo=0.0, hi=100.0),
+    )),
+    MessageDef(MsgId.PING, _TC, "link check; answered by ACK", ()),
+    MessageDef(MsgId.REQUEST_STATUS, _TC, "ACK, then one STATUS at once", ()),
+    MessageDef(MsgId.TIME_SYNC, _TC, "FC clock at the first byte of this frame", (
+        _f("fc_time_ns", "u64", "ns", "FC time when the first ASM byte left its UART"),)),
+)
+
+BY_ID: dict[int, MessageDef] = {m.id: m for m in MESSAGES}
