@@ -2,7 +2,6 @@
 
 import math
 import os
-import select
 import threading
 import time
 import tty
@@ -20,6 +19,7 @@ from tracker.protocol.encoder import Encoder
 from tracker.protocol.framing import crc16
 from tracker.protocol.link import Link
 from tracker.protocol.messages import BY_ID, Direction, Mode, MsgId, Reason
+from tracker.protocol.nullmodem import NullModem
 
 STATUS = {
     "uptime_s": 7, "frame_rate_hz": 29.5, "exposure_us": 20000, "gain": 2.0,
@@ -235,30 +235,8 @@ def test_a_port_that_fails_is_reopened_with_backoff(pty):
 @pytest.fixture(name="null_modem")
 def fixture_null_modem():
     """Two pseudo-terminals joined master to master: (tracker's path, FC's path)."""
-    ends = [os.openpty() for _ in range(2)]
-    for m, s in ends:
-        tty.setraw(m)
-        tty.setraw(s)
-    stop = threading.Event()
-
-    def relay():
-        a, b = ends[0][0], ends[1][0]
-        while not stop.is_set():
-            ready, _, _ = select.select([a, b], [], [], 0.02)
-            for fd in ready:
-                try:
-                    os.write(b if fd == a else a, os.read(fd, 65536))
-                except OSError:
-                    return
-
-    t = threading.Thread(target=relay, daemon=True)
-    t.start()
-    yield os.ttyname(ends[0][1]), os.ttyname(ends[1][1])
-    stop.set()
-    t.join()
-    for m, s in ends:
-        os.close(s)
-        os.close(m)
+    with NullModem() as ports:
+        yield ports
 
 
 def test_monitor_prints_attitude_as_ra_dec_roll_and_its_ping_is_acked(null_modem, tmp_path,

@@ -67,6 +67,8 @@ def run(args, cfg) -> int:
     source = ReplaySource(args.frames, loop=args.loop, fps=args.fps,
                           bits16_depth=cfg.camera.bit_depth)
     pipeline = Pipeline(cfg)
+    if cfg.identify.enabled:
+        pipeline.solver  # load catalogue and database now, not inside frame 1's time  # noqa: B018
     out = open(args.jsonl, "w", encoding="utf-8") if args.jsonl else sys.stdout
     overlay_dir = Path(args.overlay) if args.overlay else None
     if overlay_dir:

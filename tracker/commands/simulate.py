@@ -6,17 +6,22 @@ attitude; without them it is random (seeded). With a body rate
 one, frames at a fixed attitude repeat it with fresh noise, and random
 frames each get a new random attitude (a lost-in-space test set).
 Each frame is written as ``DIR/<prefix>NNNN.png`` plus
-``<prefix>NNNN.png.truth.json`` (tracker.sim.io).
+``<prefix>NNNN.png.truth.json`` (tracker.sim.io), and ``DIR/frames.jsonl``
+indexes them with their time (``t_ns`` = the sequence time) and exposure,
+which ``tracker replay`` reads (tracker.capture.replay).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from tracker.attitude import matrix_from_radec_roll
+from tracker.capture.replay import METADATA_FILE
 from tracker.catalogue import Catalogue
 from tracker.cli import UserError
 from tracker.commands.progress import Progress
@@ -86,10 +91,16 @@ def simulate(args, cfg) -> int:
     progress = Progress(args.frames, "simulate")
     bright = []
     try:
-        for i, frame in enumerate(frames):
-            write_frame(frame, args.out, f"{args.prefix}{i:04d}")
-            bright.append(int(np.sum(frame.stars["in_frame"] & (frame.stars["peak_snr"] >= 5))))
-            progress.advance()
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        with open(Path(args.out) / METADATA_FILE, "w", encoding="utf-8") as index:
+            for i, frame in enumerate(frames):
+                path = write_frame(frame, args.out, f"{args.prefix}{i:04d}")
+                index.write(json.dumps({"file": path.name,
+                                        "t_ns": round(frame.truth["t_s"] * 1e9),
+                                        "exposure_us": frame.truth["exposure_ms"] * 1e3}) + "\n")
+                bright.append(int(np.sum(frame.stars["in_frame"]
+                                         & (frame.stars["peak_snr"] >= 5))))
+                progress.advance()
     except ValueError as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:
