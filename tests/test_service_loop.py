@@ -232,7 +232,9 @@ def test_systemd_notifications(tmp_path):
                                                ("/run/x", "/run/x"), ("", None)])
 def test_notifier_address_forms(address, expected):
     n = Notifier(address)
-    assert n._addr == (expected or "") or (expected is None and not n.enabled)
+    assert n.enabled == (expected is not None)
+    if expected is not None:
+        assert n._addr == expected
     n.notify("READY=1")      # nobody listening: logged once, never raises
     n.close()
 
@@ -274,3 +276,15 @@ def test_a_bug_outside_the_stages_is_not_swallowed():
     with pytest.raises(KeyError, match="bug"):
         svc.run()
     assert svc.link.closed
+
+
+def test_watchdog_interval_is_half_of_systemds_for_this_process(monkeypatch):
+    import os
+
+    from tracker.notify import watchdog_interval_s
+
+    monkeypatch.setenv("WATCHDOG_USEC", "5000000")
+    monkeypatch.setenv("WATCHDOG_PID", str(os.getpid()))
+    assert watchdog_interval_s() == 2.5
+    monkeypatch.setenv("WATCHDOG_PID", "1")           # meant for another process
+    assert watchdog_interval_s() is None

@@ -154,7 +154,7 @@ class SimConfig:
 class DetectConfig:
     """Star detection and centroiding (tracker.detect)."""
 
-    method: str = knob("seed", "detection and centroiding method: default (fixed-memory "
+    method: str = knob("default", "detection and centroiding method: default (fixed-memory "
                        "detector), seed (the dissertation's pipeline), com, gaussian_fit, "
                        "gaussian_fit_fast, sieve (its baselines)",
                        choices=("default", "seed", "com", "gaussian_fit", "gaussian_fit_fast",
@@ -191,8 +191,9 @@ class DetectConfig:
                                     "on the way to a brighter one", "sigma",
                                     min=0.0, max=1000.0)
     blend_radius_px: int | None = knob(None, "default: distance within which two stars are "
-                                       "a pair (deblend test, BLENDED flag); null = the "
-                                       "centroid window's radius", "px", min=1, max=64)
+                                       "a pair (deblend test, BLENDED flag); null = twice "
+                                       "the centroid window's radius (windows overlap)",
+                                       "px", min=1, max=64)
     centroid_iterations: int = knob(8, "default: most iterations of the windowed centroid",
                                     min=1, max=100)
     centroid_tolerance_px: float = knob(0.001, "default: stop iterating when no centroid "
@@ -227,9 +228,9 @@ class IdentifyConfig:
     pair_tolerance_px: float = knob(1.5, "half-width of the band of catalogue separations "
                                     "each image separation selects", "px", min=0.01,
                                     max=100.0)
-    match_radius_px: float = knob(2.0, "an image star matches a predicted catalogue star "
+    match_radius_px: float = knob(1.5, "an image star matches a predicted catalogue star "
                                   "within this distance", "px", min=0.01, max=100.0)
-    max_prob_false: float = knob(1e-7, "accept a match only if the chance that it is wrong "
+    max_prob_false: float = knob(1e-6, "accept a match only if the chance that it is wrong "
                                  "is below this (per frame; tracker.identify.verify)", "",
                                  min=1e-30, max=0.5)
     min_matched: int = knob(5, "fewest matched stars for an accepted attitude", "stars",
@@ -245,6 +246,10 @@ class IdentifyConfig:
     centroid_sigma_px: float = knob(0.25, "prior centroid noise per axis, blended with the "
                                     "fit residuals for the reported sigmas", "px",
                                     min=0.001, max=100.0)
+    mag_tolerance: float = knob(1.5, "a match is dropped when its catalogue magnitude is "
+                                "this far from the one its flux implies (zero point: "
+                                "median over the frame's matches)", "mag", min=0.1,
+                                max=20.0)
     track_gate_px: float = knob(12.0, "tracking: predicted stars are searched this far "
                                 "from their prediction", "px", min=0.1, max=1000.0)
     track_max_gap_s: float = knob(2.0, "tracking: predict only from a solution this recent",

@@ -5,10 +5,11 @@ One thread runs the loop below; nothing else touches the stages.
 1. Open the link (the serial port; a failure is retried by the link itself).
 2. Open the frame source (retry with doubling backoff, ``service.retry_*``,
    while it fails; the state is ``fault`` meanwhile).
-3. For each item from the source: count it, ping the watchdogs, service the
-   link (FC commands in, telemetry out, STATUS every
-   ``service.status_period_s``), then, unless in standby, run the pipeline,
-   update the state and the exposure, and send ATTITUDE and CENTROIDS.
+3. For each item from the source: count it, ping the watchdogs, apply FC
+   commands, offer STATUS to the link (sent at ``link.status_rate_hz``; a
+   systemd STATUS line every ``service.status_period_s``), then, unless in
+   standby, run the pipeline, update the state and the exposure, and offer
+   ATTITUDE and CENTROIDS (the link applies their output rates).
 4. ``READY=1`` goes to systemd after the first frame, or after the first
    failed attempt to open the camera (the unit is then up, in ``fault``,
    reporting STATUS and retrying: a camera missing at boot does not make

@@ -62,12 +62,18 @@ def _override(cfg: Config, args) -> Config:
 def build_service(cfg: Config, replay: list[str] | None = None, **kwargs) -> Service:
     """The service with the real stages; ``kwargs`` go to :class:`Service`.
 
-    Raises FileNotFoundError at once if replay frames are missing.
+    Raises FileNotFoundError at once if replay frames are missing, and the
+    database's ConfigError if no pattern database fits the camera.
     """
     if cfg.capture.backend == "replay":
         make_source(cfg, replay)     # missing frames: said now, not retried forever
+    pipeline = kwargs.pop("pipeline", None) or Pipeline(cfg)
+    if cfg.identify.enabled and isinstance(pipeline, Pipeline):
+        # load the catalogue and pattern database now (a wrong database is a
+        # clear error at start-up), not inside the first frame's latency
+        pipeline.solver  # noqa: B018
     return Service(cfg, source_factory=lambda: make_source(cfg, replay),
-                   pipeline=kwargs.pop("pipeline", None) or Pipeline(cfg),
+                   pipeline=pipeline,
                    link=kwargs.pop("link", None) or ServiceLink(cfg), **kwargs)
 
 
