@@ -17,7 +17,8 @@ from tracker.notify import Notifier
 from tracker.pipeline import FrameResult
 from tracker.protocol.decoder import StreamDecoder
 from tracker.protocol.encoder import Encoder
-from tracker.protocol.messages import AttitudeFlag, Direction, Mode, MsgId
+from tracker.protocol.framing import crc16
+from tracker.protocol.messages import AttitudeFlag, Direction, Mode, MsgId, Reason
 from tracker.service import Service, State
 from tracker.service_link import ServiceLink
 
@@ -31,6 +32,12 @@ class Solution:
 
 
 class Pipeline:
+    def __init__(self):
+        self.resets = 0
+
+    def reset(self):
+        self.resets += 1
+
     def process(self, image, bit_depth, t_ns):
         stars = np.zeros(3, STAR_DTYPE)
         stars["x"], stars["flux"] = [1.0, 2.0, 3.0], [30.0, 20.0, 10.0]
@@ -90,7 +97,8 @@ def test_fc_commands_garbage_and_telemetry(fc):
     cfg = dataclasses.replace(cfg, link=dataclasses.replace(cfg.link, port=port,
                                                             centroids_rate_hz=50.0),
                               service=dataclasses.replace(cfg.service, watchdog_s=0.0))
-    svc = Service(cfg, source_factory=Frames, pipeline=Pipeline(), link=ServiceLink(cfg),
+    pipeline = Pipeline()
+    svc = Service(cfg, source_factory=Frames, pipeline=pipeline, link=ServiceLink(cfg),
                   notifier=Notifier(""))
     runner = threading.Thread(target=svc.run)
     runner.start()
@@ -125,6 +133,22 @@ def test_fc_commands_garbage_and_telemetry(fc):
         while svc.exposure.exposure_us != 1500.0 and time.monotonic() < deadline:
             time.sleep(0.01)
         assert svc.exposure.exposure_us == 1500.0 and not svc.exposure.auto
+
+        # LOST_IN_SPACE drops the tracking lock; FAULT can be reported, never commanded
+        os.write(master, fc_enc.encode(MsgId.SET_MODE, mode=Mode.LOST_IN_SPACE))
+        frame = bytearray(fc_enc.encode(MsgId.SET_MODE, mode=Mode.LOST_IN_SPACE))
+        frame[10] = Mode.FAULT                     # payload byte after ASM + header
+        body = bytes(frame[4:-2])
+        frame[-2:] = crc16(body).to_bytes(2, "big")
+        os.write(master, bytes(frame))
+        replies = read_packets(master, decoder, lambda ps: any(p.id == MsgId.NACK for p in ps))
+        nack = next(p for p in replies if p.id == MsgId.NACK)
+        assert nack.values["cmd_id"] == MsgId.SET_MODE
+        assert nack.values["code"] == Reason.OUT_OF_RANGE
+        deadline = time.monotonic() + 5
+        while pipeline.resets == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert pipeline.resets == 1 and svc.state != State.STANDBY
     finally:
         svc.request_stop()
         runner.join(timeout=10)

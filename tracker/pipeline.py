@@ -63,6 +63,11 @@ class Pipeline:
             self._solver = make_solver(self.cfg.identify, self.camera, catalogue)
         return self._solver
 
+    def reset(self) -> None:
+        """Forget the tracking state: the next frame is solved lost in space."""
+        if self._solver is not None:
+            self._solver.reset()
+
     def process(self, image: np.ndarray, bit_depth: int, t_ns: int) -> FrameResult:
         """Detect, identify and solve one frame; never raises on bad pixels."""
         t0 = time.perf_counter_ns()

@@ -135,8 +135,14 @@ class Service:
         signal.signal(signal.SIGTERM, self.request_stop)
         signal.signal(signal.SIGINT, self.request_stop)
 
-    def set_mode(self, state: State) -> None:
-        """A mode asked for by the FC: standby, or acquiring (tracking follows by itself)."""
+    def set_mode(self, state: State, reacquire: bool = False) -> None:
+        """A mode asked for by the FC: standby, or acquiring (tracking follows by itself).
+
+        ``reacquire`` drops the solver's tracking state, so the next frame is
+        solved lost in space.
+        """
+        if reacquire:
+            self.pipeline.reset()
         self._wanted = State.STANDBY if state == State.STANDBY else State.ACQUIRING
         if self.state != State.FAULT or state == State.STANDBY:
             self._enter(self._wanted)
@@ -145,11 +151,6 @@ class Service:
         """FC override of exposure and/or gain; automatic control stops."""
         self.exposure.set_manual(exposure_us, gain)
         self._apply_exposure()
-
-    @property
-    def mode(self) -> State:
-        """The state as the FC sees it: fault shows as acquiring (last_error says why)."""
-        return State.ACQUIRING if self.state == State.FAULT else self.state
 
     # -- the loop --------------------------------------------------------------
 
@@ -257,7 +258,7 @@ class Service:
         if self.exposure.update(result.detections, frame.bit_depth):
             self._apply_exposure()
         t_ctl = time.monotonic_ns()
-        self.link.send_frame(frame, result, self.mode)
+        self.link.send_frame(frame, result, self.state)
         t_end = time.monotonic_ns()
         latency = (t_end - t_avail) / 1e6
         self.health.processed += 1

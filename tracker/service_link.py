@@ -7,9 +7,11 @@ arrive on the link's reader thread; they are only stored there and applied
 by :meth:`ServiceLink.poll` on the frame loop's thread, the one thread that
 touches the service.
 
-State -> protocol mode: standby -> STANDBY, acquiring (and fault) ->
-LOST_IN_SPACE, tracking -> TRACKING. SET_MODE TRACKING is accepted as
-"solve": the service enters tracking by itself once frames solve.
+State -> protocol mode: standby -> STANDBY, acquiring -> LOST_IN_SPACE,
+tracking -> TRACKING, fault -> FAULT (STATUS.last_error says why).
+SET_MODE LOST_IN_SPACE forgets the tracking state and acquires from
+scratch; SET_MODE TRACKING keeps any lock. Either way the service enters
+tracking by itself once frames solve.
 SET_EXPOSURE / SET_GAIN fix the value and stop automatic exposure.
 After TIME_SYNC, ``t_ns`` in ATTITUDE and CENTROIDS is on the FC's clock and
 TIME_SYNCED is set.
@@ -32,7 +34,7 @@ from tracker.service import State
 __all__ = ["ServiceLink"]
 
 _MODE_OF_STATE = {"standby": Mode.STANDBY, "acquiring": Mode.LOST_IN_SPACE,
-                  "fault": Mode.LOST_IN_SPACE, "tracking": Mode.TRACKING}
+                  "fault": Mode.FAULT, "tracking": Mode.TRACKING}
 _RX_REJECTS = ("rx_bad_header", "rx_bad_crc", "rx_unknown_id", "rx_wrong_length",
                "rx_out_of_range")
 _U32 = 2**32 - 1
@@ -77,7 +79,7 @@ class ServiceLink:
         return Reason.OK
 
     def set_mode(self, mode: Mode) -> Reason:
-        return self._store("mode", "standby" if mode == Mode.STANDBY else "acquiring")
+        return self._store("mode", Mode(mode))
 
     def set_exposure(self, exposure_us: int) -> Reason:
         return self._store("exposure_us", float(exposure_us))
@@ -99,7 +101,9 @@ class ServiceLink:
         with self._lock:
             pending, self._pending = self._pending, {}
         if "mode" in pending:
-            service.set_mode(State(pending["mode"]))
+            mode = pending["mode"]
+            service.set_mode(State.STANDBY if mode == Mode.STANDBY else State.ACQUIRING,
+                             reacquire=mode == Mode.LOST_IN_SPACE)
         if "exposure_us" in pending or "gain" in pending:
             service.set_exposure(pending.get("exposure_us"), pending.get("gain"))
         stats = self.link.stats()

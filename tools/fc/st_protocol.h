@@ -36,6 +36,7 @@ enum st_mode {
     ST_MODE_STANDBY = 0,
     ST_MODE_LOST_IN_SPACE = 1,
     ST_MODE_TRACKING = 2,
+    ST_MODE_FAULT = 3,
 };
 
 /* ACK/NACK codes; also what st_parse_* return. */

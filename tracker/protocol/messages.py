@@ -66,6 +66,7 @@ class Mode(enum.IntEnum):
     STANDBY = 0
     LOST_IN_SPACE = 1
     TRACKING = 2
+    FAULT = 3          # reported only (no camera, or frames failing); SET_MODE refuses it
 
 
 class Reason(enum.IntEnum):
@@ -283,7 +284,8 @@ MESSAGES: tuple[MessageDef, ...] = (
     MessageDef(MsgId.ACK, _TM, "command accepted", _REPLY, priority=0),
     MessageDef(MsgId.NACK, _TM, "command refused; nothing changed", _REPLY, priority=0),
     MessageDef(MsgId.SET_MODE, _TC, "change operating mode", (
-        _f("mode", "u8", "", "Mode", choices=tuple(Mode)),)),
+        _f("mode", "u8", "", "Mode", choices=(Mode.STANDBY, Mode.LOST_IN_SPACE,
+                                              Mode.TRACKING)),)),
     MessageDef(MsgId.SET_EXPOSURE, _TC, "set the exposure time", (
         _f("exposure_us", "u32", "us", "exposure time", lo=10, hi=1_000_000),)),
     MessageDef(MsgId.SET_GAIN, _TC, "set the analogue gain", (
