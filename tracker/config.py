@@ -156,17 +156,17 @@ class DetectConfig:
 
     method: str = knob("default", "detection and centroiding method: default (fixed-memory "
                        "detector), seed (the dissertation's pipeline), com, gaussian_fit, "
-                       "gaussian_fit_fast, sieve (its baselines)",
+                       "gaussian_fit_fast, sieve (its baselines)", "name",
                        choices=("default", "seed", "com", "gaussian_fit", "gaussian_fit_fast",
                                 "sieve"))
-    max_stars: int = knob(256, "largest number of stars reported per frame", min=1,
+    max_stars: int = knob(256, "largest number of stars reported per frame", "stars", min=1,
                           max=65535)
     seed_blur_sigma_px: float = knob(1.5, "seed method: Gaussian blur sigma", "px",
                                      min=0.3, max=10.0)
     seed_blur_ksize_px: int = knob(7, "seed method: Gaussian blur kernel size (odd)", "px",
                                    choices=(3, 5, 7, 9, 11, 13, 15))
     seed_threshold_frac: float = knob(0.3, "seed method: threshold as a fraction of the "
-                                      "filtered image's maximum", "", min=0.01, max=0.99)
+                                      "filtered image's maximum", "fraction", min=0.01, max=0.99)
     psf_sigma_px: float = knob(1.2, "default: Gaussian PSF sigma of the optics (sets the "
                                "matched filter and the centroid window)", "px",
                                min=0.3, max=10.0)
@@ -182,10 +182,10 @@ class DetectConfig:
                                 min=1.0, max=1000.0)
     impulse_contrast: float | None = knob(
         None, "default: ... and by more than this fraction of its height above the "
-        "background; null = halfway between a centred PSF's value and 1", "",
+        "background; null = halfway between a centred PSF's value and 1", "fraction",
         min=0.0, max=1.0)
     max_impulses: int = knob(32768, "default: impulse candidates tested one by one; more "
-                             "switch to a whole-frame test", min=1, max=10000000)
+                             "switch to a whole-frame test", "pixels", min=1, max=10000000)
     deblend_dip_sigma: float = knob(1.5, "default: a fainter local maximum is a separate "
                                     "star if the filtered image dips this far below it "
                                     "on the way to a brighter one", "sigma",
@@ -195,23 +195,23 @@ class DetectConfig:
                                        "the centroid window's radius (windows overlap)",
                                        "px", min=1, max=64)
     centroid_iterations: int = knob(8, "default: most iterations of the windowed centroid",
-                                    min=1, max=100)
+                                    "iterations", min=1, max=100)
     centroid_tolerance_px: float = knob(0.001, "default: stop iterating when no centroid "
                                         "moves more than this", "px", min=0.0, max=1.0)
     sharp_size_ratio: float = knob(0.5, "default: reject a spot whose windowed second "
                                    "moment is below this fraction of the PSF's (a "
-                                   "cosmic-ray cluster)", "", min=0.0, max=1.0)
+                                   "cosmic-ray cluster)", "fraction", min=0.0, max=1.0)
     sharp_min_snr: float = knob(10.0, "default: apply the sharpness and elongation tests "
-                                "only above this SNR", "", min=0.0, max=1e6)
+                                "only above this SNR", "sigma", min=0.0, max=1e6)
     elongation_max: float = knob(0.3, "default: flag ELONGATED above this ellipticity of "
-                                 "the windowed moments", "", min=0.0, max=1.0)
+                                 "the windowed moments", "ratio", min=0.0, max=1.0)
     saturation_adu: float | None = knob(None, "default: level flagged SATURATED; null = "
                                         "full scale of the bit depth", "ADU", min=1.0)
     max_candidates: int = knob(2048, "default: local maxima examined per frame (brightest "
-                               "kept)", min=1, max=1000000)
+                               "kept)", "maxima", min=1, max=1000000)
     max_pixels_above: int = knob(262144, "default: pixels above threshold examined per "
                                  "frame; more raise the threshold (reason 'crowded')",
-                                 min=1, max=100000000)
+                                 "pixels", min=1, max=100000000)
 
 
 @dataclass(frozen=True)
@@ -220,7 +220,7 @@ class IdentifyConfig:
 
     enabled: bool = knob(True, "identify stars and solve attitude")
     database: str | None = knob(None, "pattern database file; null = the catalogue/ "
-                                "patterns_*.npz whose field-of-view range holds the camera's")
+                                "patterns_*.npz whose field-of-view range holds the camera's", "path")
     pattern_stars: int = knob(12, "brightest image stars whose triangles lost-in-space tries",
                               "stars", min=3, max=64)
     verify_stars: int = knob(40, "brightest image stars checked against a hypothesis",
@@ -231,12 +231,12 @@ class IdentifyConfig:
     match_radius_px: float = knob(1.5, "an image star matches a predicted catalogue star "
                                   "within this distance", "px", min=0.01, max=100.0)
     max_prob_false: float = knob(1e-6, "accept a match only if the chance that it is wrong "
-                                 "is below this (per frame; tracker.identify.verify)", "",
-                                 min=1e-30, max=0.5)
+                                 "is below this (per frame; tracker.identify.verify)",
+                                 "probability", min=1e-30, max=0.5)
     min_matched: int = knob(5, "fewest matched stars for an accepted attitude", "stars",
                             min=4, max=1000)
     max_triads: int = knob(400, "lost in space: most image triangles tried per frame",
-                           min=1, max=100000)
+                           "triangles", min=1, max=100000)
     max_lis_ms: float = knob(250.0, "lost in space: give up after this long", "ms",
                              min=1.0, max=60000.0)
     min_separation_px: float = knob(8.0, "triangle stars closer together than this are "

@@ -45,7 +45,7 @@ def _panel(img, top, title, ticks, to_y, sets, series, methods):
 def plot_sets(path: str, sets: list[str], methods: list[str], recall: dict,
               error: dict, title: str) -> None:
     """Write the PNG; ``recall``/``error`` map method -> one value (or None) per set."""
-    height = _TOP + 2 * _PANEL + _GAP + 160
+    height = _TOP + 2 * _PANEL + _GAP + 240
     img = np.full((height, _W, 3), 255, np.uint8)
     cv2.putText(img, title, (_LEFT, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1,
                 cv2.LINE_AA)
@@ -65,8 +65,8 @@ def plot_sets(path: str, sets: list[str], methods: list[str], recall: dict,
     xs = _panel(img, top2, "mean Euclidean error, px (log)",
                 [(t, f"{t:g}") for t in (0.01, 0.1, 1.0, 10.0)], error_y, sets, error, methods)
     for x, name in zip(xs, sets, strict=True):
-        label = np.full((14, 150, 3), 255, np.uint8)
-        cv2.putText(label, name[-16:], (0, 11), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (0, 0, 0), 1,
+        label = np.full((14, 230, 3), 255, np.uint8)
+        cv2.putText(label, name, (0, 11), cv2.FONT_HERSHEY_SIMPLEX, 0.36, (0, 0, 0), 1,
                     cv2.LINE_AA)
         rotated = cv2.rotate(label, cv2.ROTATE_90_COUNTERCLOCKWISE)
         y0 = top2 + _PANEL + 6

@@ -9,13 +9,18 @@ __all__ = ["describe_machine"]
 
 
 def _cpu_model() -> str:
+    """The CPU's name: x86 'model name', else the Arm board's 'Model' / 'Hardware'."""
+    fields: dict[str, str] = {}
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as fh:
             for line in fh:
-                if line.lower().startswith(("model name", "hardware", "model\t")):
-                    return line.split(":", 1)[1].strip()
+                key, _, value = line.partition(":")
+                fields.setdefault(key.strip().lower(), value.strip())
     except OSError:
         pass
+    for key in ("model name", "model", "hardware"):
+        if fields.get(key) and not fields[key].isdigit():
+            return fields[key]
     return platform.processor() or platform.machine()
 
 

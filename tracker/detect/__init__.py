@@ -3,7 +3,17 @@
 One :class:`Detector` is made per frame shape and bit depth with
 :func:`make_detector`; its ``detect(image)`` returns
 :class:`~tracker.detect.result.Detections`. Methods are chosen by name in
-the ``detect.method`` configuration key (see :data:`METHODS`).
+the ``detect.method`` configuration key (see :data:`METHODS`):
+
+* ``default`` (tracker.detect.default): fixed-memory detector with tile
+  background, impulse (hot pixel, cosmic ray) rejection, matched filter,
+  noise-scaled threshold, deblending and a Gaussian-windowed centroid;
+* ``seed`` (tracker.detect.seed): the dissertation's pipeline;
+* ``com``, ``gaussian_fit``, ``gaussian_fit_fast``, ``sieve``
+  (tracker.detect.baselines): its baselines on the seed's blobs.
+
+Bad frames never raise: the result is empty with a reason code
+(tracker.detect.frame_input.Reason).
 """
 
 from __future__ import annotations
@@ -22,6 +32,10 @@ __all__ = ["Detector", "make_detector", "METHODS", "Detections", "STAR_DTYPE", "
 METHODS = {
     "default": "tracker.detect.default:DefaultDetector",
     "seed": "tracker.detect.seed:SeedDetector",
+    "com": "tracker.detect.baselines:ComDetector",
+    "gaussian_fit": "tracker.detect.baselines:GaussianFitDetector",
+    "gaussian_fit_fast": "tracker.detect.baselines:FastGaussianFitDetector",
+    "sieve": "tracker.detect.baselines:SieveDetector",
 }
 
 

@@ -29,6 +29,8 @@ __all__ = ["BackgroundGrid", "QUANTISATION_NOISE_ADU"]
 
 QUANTISATION_NOISE_ADU = float(np.sqrt(1.0 / 12.0))
 _MEAN_ABS_IN_IQR = 0.3247  # E|z| for a standard normal z restricted to its middle half
+_ONE_SIGMA_ABOVE = 0.84134  # fraction of a Gaussian below mean + sigma
+_TRIMMED_STD = 0.909  # std / sigma of 64 Gaussian samples without their extremes
 
 
 def _tile_lattice(length: int, tiles: int, step: int) -> np.ndarray:
@@ -63,22 +65,48 @@ class BackgroundGrid:
         self.middle = self.samples[..., m // 4: m - m // 4]
         self.deviation = np.zeros(self.middle.shape, np.float32)
         self.raw = np.zeros(self.grid_shape, np.float32)
+        self.level_raw = np.zeros(self.grid_shape, np.float32)
+        self.upper = np.zeros(self.grid_shape, np.float32)
+        self._upper = int(round(_ONE_SIGMA_ABOVE * (m - 1)))
+        self.trim_dev = np.zeros((ny, nx, max(m - 2, 0)), np.float32)
+
         tile_rows = _tile_of(rows, ny, layout.pad, layout.full_shape[0])
         tile_cols = _tile_of(cols, nx, layout.pad, layout.stride)
         self.tile_index = (tile_rows[:, None] * nx + tile_cols[None, :]).astype(np.int32).ravel()
         self.tile_scratch = np.zeros(int(capacity), np.int32)
 
     def stats(self, padded: np.ndarray, level: np.ndarray, noise: np.ndarray,
-              floor: float) -> None:
-        """Per-tile level and noise (grid shape, units of ``padded``) into the given arrays."""
+              floor: float, upper: bool = False) -> None:
+        """Per-tile level and noise (grid shape, units of ``padded``) into the given arrays.
+
+        With ``upper`` the noise is also at least the distance from the level
+        up to the 84.13th percentile, and at least the standard deviation of
+        the samples without their lowest and highest (divided by 0.909, its
+        value for Gaussian samples): noise with a long bright tail, or a
+        background clipped at zero so that most pixels read exactly 0 (photon
+        noise of a few counts), then gets the larger, honest figure, where the
+        middle-half estimate would see no spread at all. For Gaussian noise
+        all three agree.
+        """
         np.take(padded.ravel(), self.index, out=self.samples, mode="clip")
         self.samples.sort(axis=-1)
-        np.mean(self.middle, axis=-1, out=self.raw)
-        self._smooth(self.raw, level)
-        np.subtract(self.middle, self.raw[..., None], out=self.deviation)
+        np.mean(self.middle, axis=-1, out=self.level_raw)
+        self._smooth(self.level_raw, level)
+        np.subtract(self.middle, self.level_raw[..., None], out=self.deviation)
         np.abs(self.deviation, out=self.deviation)
         np.mean(self.deviation, axis=-1, out=self.raw)
         np.multiply(self.raw, 1.0 / _MEAN_ABS_IN_IQR, out=self.raw)
+        if upper:
+            np.subtract(self.samples[..., self._upper], self.level_raw, out=self.upper)
+            np.maximum(self.raw, self.upper, out=self.raw)
+            trimmed = self.samples[..., 1:-1]
+            np.mean(trimmed, axis=-1, out=self.upper)
+            np.subtract(trimmed, self.upper[..., None], out=self.trim_dev)
+            np.square(self.trim_dev, out=self.trim_dev)
+            np.mean(self.trim_dev, axis=-1, out=self.upper)
+            np.sqrt(self.upper, out=self.upper)
+            np.multiply(self.upper, 1.0 / _TRIMMED_STD, out=self.upper)
+            np.maximum(self.raw, self.upper, out=self.raw)
         np.maximum(self.raw, floor, out=self.raw)
         self._smooth(self.raw, noise)
 

@@ -82,7 +82,7 @@ class DefaultDetector:
         sigma = effective_sigma(cfg.psf_sigma_px)
         self.sigma = sigma
         self.radius = int(math.ceil(3.0 * sigma))
-        blend = self.radius if cfg.blend_radius_px is None else int(cfg.blend_radius_px)
+        blend = 2 * self.radius if cfg.blend_radius_px is None else int(cfg.blend_radius_px)
         layout = PaddedLayout(shape, max(self.radius, blend) + 1)
         self.layout = layout
         self.input = FrameInput(shape, bit_depth, min_size=3, layout=layout)
@@ -91,7 +91,7 @@ class DefaultDetector:
         self.table = StarTable(cfg.max_stars)
         self.timer = StageTimer()
         self.grid = BackgroundGrid(layout, cfg.background_tile_px, cfg.background_step_px,
-                                   max(cfg.max_impulses, cfg.max_candidates))
+                                   cfg.max_candidates)
         grid_shape = self.grid.grid_shape
         self.level = np.zeros(grid_shape, np.float32)        # raw background, ADU
         self.noise = np.zeros(grid_shape, np.float32)        # raw pixel noise, ADU
@@ -99,6 +99,9 @@ class DefaultDetector:
         self.noise_f = np.zeros(grid_shape, np.float32)      # filtered noise, ADU
         self.threshold_grid = np.zeros(grid_shape, np.float32)
         self.bg_pad, self.bg = layout.buffer(np.float32)
+        self.noise_pad, self.noise_map = layout.buffer(np.float32)
+        self.impulse_limit = np.zeros(self.input.shape, np.float32)
+        self.limit_grid = np.zeros(grid_shape, np.float32)
         self.filt_pad, self.filt = layout.buffer(np.float32)
         self.threshold = np.zeros(self.input.shape, np.float32)
         contrast = (cfg.impulse_contrast if cfg.impulse_contrast is not None
@@ -120,12 +123,6 @@ class DefaultDetector:
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
                          "sharp_spots": 0, "candidates": 0}
 
-    def _noise_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
-        return self.grid.at(self.noise, flat, out)
-
-    def _noise_map(self, dst: np.ndarray) -> np.ndarray:
-        return self.grid.upsample(self.noise, dst)
-
     def _noise_f_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
         return self.grid.at(self.noise_f, flat, out)
 
@@ -142,18 +139,21 @@ class DefaultDetector:
             return self.table.result(0, reason, self.counters, timer.ms)
         timer.start("background")
         grid = self.grid
-        grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU)
+        grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
+                   upper=True)
         grid.upsample(self.level, self.bg)
+        grid.upsample(self.noise, self.noise_map)
+        np.multiply(self.noise, self.cfg.impulse_sigma, out=self.limit_grid)
+        grid.upsample(self.limit_grid, self.impulse_limit)
         timer.start("impulses")
-        self.counters.update(self.impulses.run(
-            self.input.padded, self.input.work, self.bg_pad, self._noise_at, self._noise_map,
-            float(self.noise.min())))
+        self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
+                                               self.noise_pad, self.impulse_limit))
         timer.start("filter")
         cv2.GaussianBlur(self.input.work, self.ksize, self.sigma, dst=self.filt,
                          borderType=cv2.BORDER_REFLECT)
         cv2.subtract(self.filt, self.bg, dst=self.filt)
         grid.stats(self.filt_pad, self.residual, self.noise_f,
-                   QUANTISATION_NOISE_ADU * self.filter_gain)
+                   QUANTISATION_NOISE_ADU * self.filter_gain, upper=True)
         np.multiply(self.noise_f, self.cfg.threshold_sigma, out=self.threshold_grid)
         np.add(self.threshold_grid, self.residual, out=self.threshold_grid)
         grid.upsample(self.threshold_grid, self.threshold)
@@ -182,7 +182,7 @@ class DefaultDetector:
             return 0
         cand = self.peaks.cand[:n]
         noise, level = self.cand_noise[:n], self.cand_level[:n]
-        self.grid.at(self.noise, cand, noise)
+        np.take(self.noise_pad.ravel(), cand, out=noise, mode="clip")
         self.grid.at(self.residual, cand, level)
         v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level)
         sharp = (v["snr"] >= self.cfg.sharp_min_snr) & (

@@ -18,7 +18,7 @@ twice). Tracks wider than one pixel survive the 3x3 median and are left to
 the detector's shape test.
 
 The test runs on the few pixels that differ from their median by more than
-``k_sigma`` times the frame's lowest noise, gathered into fixed buffers of
+``k_sigma`` times the local noise, gathered into fixed buffers of
 ``capacity`` entries. When there are more (a frame full of salt-and-pepper
 noise) it runs on the whole frame instead and counts only ``impulse_pixels``.
 """
@@ -87,7 +87,6 @@ class ImpulseFilter:
         self.diff_pad, self.diff = layout.buffer(np.float32)
         self.mask_pad, self.mask = layout.buffer(np.uint8)
         self.dense = _TestBuffers(layout.full_shape)
-        self.dense_noise = np.zeros(layout.full_shape, np.float32)
         self.sparse = _TestBuffers((self.capacity,))
         self.index = np.zeros(self.capacity, np.intp)
         self.values = np.zeros((4, self.capacity), np.float32)
@@ -101,40 +100,39 @@ class ImpulseFilter:
         self.counts = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0}
 
     def run(self, work_pad: np.ndarray, work: np.ndarray, bg_pad: np.ndarray,
-            noise_at, noise_map, lowest_noise: float) -> dict:
+            noise_pad: np.ndarray, limit: np.ndarray) -> dict:
         """Replace impulses in ``work`` (interior view of ``work_pad``) in place; counts.
 
-        ``noise_at(flat, out)`` gives the pixel noise at padded flat indices;
-        ``noise_map(dst)`` fills a padded interior view with it (whole-frame test).
+        ``noise_pad`` is the pixel noise (padded like ``work_pad``) and
+        ``limit`` (frame shape) ``k_sigma`` times it: the first cut.
         """
         counts = self.counts
         for key in counts:
             counts[key] = 0
         cv2.medianBlur(work, 3, dst=self.median)
         cv2.absdiff(work, self.median, dst=self.diff)
-        cv2.compare(self.diff, self.k_sigma * lowest_noise, cv2.CMP_GT, dst=self.mask)
+        cv2.compare(self.diff, limit, cv2.CMP_GT, dst=self.mask)
         n = self.layout.nonzero(self.mask_pad, self.index)
         if n == 0:
             return counts
         if n > self.capacity:
-            noise_map(self.dense_noise[self.layout.pad:self.layout.pad + self.layout.rows,
-                                       self.layout.pad:self.layout.pad + self.layout.cols])
-            imp = _impulse_test(work_pad, self.median_pad, bg_pad, self.dense_noise,
-                                self.k_sigma, self.contrast, self.dense, work_pad.shape[0])
+            imp = _impulse_test(work_pad, self.median_pad, bg_pad, noise_pad, self.k_sigma,
+                                self.contrast, self.dense, work_pad.shape[0])
             np.copyto(work_pad, self.median_pad, where=imp)
             counts["impulse_pixels"] = int(np.count_nonzero(imp))
             return counts
-        self._sparse(n, work_pad, bg_pad, noise_at)
+        self._sparse(n, work_pad, bg_pad, noise_pad)
         return counts
 
-    def _sparse(self, n: int, work_pad: np.ndarray, bg_pad: np.ndarray, noise_at) -> None:
+    def _sparse(self, n: int, work_pad: np.ndarray, bg_pad: np.ndarray,
+                noise_pad: np.ndarray) -> None:
         idx = self.index[:n]
         w, m, b, s = (v[:n] for v in self.values)
         flat = work_pad.ravel()
         np.take(flat, idx, out=w, mode="clip")
         np.take(self.median_pad.ravel(), idx, out=m, mode="clip")
         np.take(bg_pad.ravel(), idx, out=b, mode="clip")
-        noise_at(idx, s)
+        np.take(noise_pad.ravel(), idx, out=s, mode="clip")
         imp = _impulse_test(w, m, b, s, self.k_sigma, self.contrast, self.sparse, n)
         np.copyto(w, m, where=imp)
         np.put(flat, idx, w, mode="clip")

@@ -30,7 +30,14 @@ __all__ = ["SeedDetector"]
 
 
 class SeedDetector:
-    """Blur, median, threshold at a fraction of the maximum, centre of mass."""
+    """Blur, median, threshold at a fraction of the maximum, centre of mass.
+
+    Subclasses (tracker.detect.baselines) keep the segmentation and change
+    the centroid: ``com_on_filtered`` False takes the centre of mass of the
+    unfiltered frame, and :meth:`_refine` may replace the positions.
+    """
+
+    com_on_filtered = True
 
     def __init__(self, cfg: DetectConfig, shape: tuple[int, int], bit_depth: int) -> None:
         self.cfg = cfg
@@ -63,6 +70,7 @@ class SeedDetector:
         n, labels = cv2.connectedComponents(self.mask, connectivity=8, ltype=cv2.CV_32S)
         timer.start("centroid")
         count, reason = self._centroids(n, labels)
+        self._refine(count)
         timer.stop()
         return self.table.result(count, reason, {"blobs": n - 1}, timer.ms)
 
@@ -74,16 +82,23 @@ class SeedDetector:
         lab = labels[rows, cols]
         w = self.filtered[rows, cols].astype(np.float64)
         flux = np.bincount(lab, w, n)[1:]
-        sx = np.bincount(lab, w * cols, n)[1:]
-        sy = np.bincount(lab, w * rows, n)[1:]
+        c = w if self.com_on_filtered else self.input.work[rows, cols].astype(np.float64)
+        weight = np.bincount(lab, c, n)[1:]
+        sx = np.bincount(lab, c * cols, n)[1:]
+        sy = np.bincount(lab, c * rows, n)[1:]
+        if not self.com_on_filtered:  # a blob of zeros in the raw frame: filtered COM
+            dark = weight <= 0
+            sx[dark] = np.bincount(lab, w * cols, n)[1:][dark]
+            sy[dark] = np.bincount(lab, w * rows, n)[1:][dark]
+            weight[dark] = flux[dark]
         npix = np.bincount(lab, None, n)[1:]
         peak = np.zeros(n)
         np.maximum.at(peak, lab, w)
         order = np.argsort(-flux, kind="stable")[: self.table.capacity]
         count = len(order)
         s = self.table.stars
-        s["x"][:count] = sx[order] / flux[order]
-        s["y"][:count] = sy[order] / flux[order]
+        s["x"][:count] = sx[order] / weight[order]
+        s["y"][:count] = sy[order] / weight[order]
         s["flux"][:count] = flux[order]
         s["peak"][:count] = peak[1:][order]
         s["snr"][:count] = 0.0
@@ -91,6 +106,9 @@ class SeedDetector:
         s["flags"][:count] = 0
         self._edge_flags(count, rows, cols, lab, order)
         return count, (Reason.TOO_MANY if n - 1 > count else None)
+
+    def _refine(self, count: int) -> None:
+        """Hook for baselines that re-measure the first ``count`` stars' positions."""
 
     def _edge_flags(self, count: int, rows: np.ndarray, cols: np.ndarray, lab: np.ndarray,
                     order: np.ndarray) -> None:

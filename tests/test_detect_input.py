@@ -1,0 +1,88 @@
+"""Bad frames never raise: every method returns a reason code and recovers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tracker.config import DetectConfig, SimConfig
+from tracker.detect import METHODS, make_detector
+from tracker.sim import render_points
+
+SHAPE = (48, 64)
+
+
+def _good_frame():
+    rng = np.random.default_rng(1)
+    frame = render_points(SHAPE, [20.3, 41.7], [15.2, 30.6], [6000.0, 9000.0], SimConfig(),
+                          rng, noise_model="realistic")
+    return frame.image
+
+
+def _bad_frames():
+    good = _good_frame()
+    readonly = good.copy()
+    readonly.flags.writeable = False
+    nan = good.astype(np.float32)
+    nan[5, 5] = np.nan
+    inf = good.astype(np.float64)
+    inf[7, 9] = -np.inf
+    return [
+        ("all zero", np.zeros(SHAPE, np.uint16), "empty"),
+        ("saturated", np.full(SHAPE, 1023, np.uint16), "saturated"),
+        ("flat", np.full(SHAPE, 100, np.uint16), "flat"),
+        ("NaN", nan, "non_finite"),
+        ("infinity", inf, "non_finite"),
+        ("1x1", np.ones((1, 1), np.uint16), "wrong_shape"),
+        ("transposed", good.T.copy(), "wrong_shape"),
+        ("colour", np.dstack([good] * 3), "wrong_shape"),
+        ("complex", good.astype(np.complex64), "bad_dtype"),
+        ("bool", good > 100, "bad_dtype"),
+        ("object", good.astype(object), "bad_dtype"),
+        ("list", good.tolist(), "bad_dtype"),
+        ("None", None, "bad_dtype"),
+        ("read-only", readonly, None),
+        ("non-contiguous", np.asfortranarray(good), None),
+        ("strided view", np.repeat(good, 2, axis=1)[:, ::2], None),
+    ]
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("name,frame,reason", _bad_frames(), ids=[b[0] for b in _bad_frames()])
+def test_bad_frame_gives_reason_and_next_frame_works(method, name, frame, reason):
+    det = make_detector(DetectConfig(method=method), SHAPE, 10)
+    good = _good_frame()
+    expected = det.detect(good).stars.copy()
+    result = det.detect(frame)
+    assert result.reason == reason
+    if reason is None:  # readable frames give exactly the contiguous frame's stars
+        np.testing.assert_array_equal(result.stars, expected)
+    else:
+        assert result.count == 0
+    again = det.detect(good)
+    assert again.reason is None
+    np.testing.assert_array_equal(again.stars, expected)
+    assert len(expected) >= 1
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("shape", [(1, 1), (2, 5)])
+def test_detector_for_a_tiny_frame_refuses_it_politely(method, shape):
+    det = make_detector(DetectConfig(method=method), shape, 10)
+    result = det.detect(np.full(shape, 7, np.uint16))
+    assert result.reason == "too_small" and result.count == 0
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_random_garbage_never_raises(method):
+    """Uniform noise, huge values and negative floats: a result, never an exception."""
+    rng = np.random.default_rng(3)
+    det = make_detector(DetectConfig(method=method), SHAPE, 10)
+    frames = [rng.integers(0, 1024, SHAPE).astype(np.uint16),
+              rng.normal(0, 1e6, SHAPE),
+              -np.abs(rng.normal(0, 5, SHAPE)).astype(np.float32),
+              rng.integers(0, 2**31, SHAPE, dtype=np.int64)]
+    for frame in frames:
+        result = det.detect(frame)
+        assert result.count <= DetectConfig().max_stars
+        assert np.all(np.isfinite(result.stars["x"])) and np.all(np.isfinite(result.stars["y"]))
