@@ -5,8 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from tracker.attitude import angle_between_rotations, matrix_from_quat, \
-    matrix_from_radec_roll
+from tracker.attitude import angle_between_rotations, matrix_from_quat, matrix_from_radec_roll
 from tracker.catalogue import load_catalogue
 from tracker.cli import main
 from tracker.config import load_config

@@ -117,7 +117,7 @@ def run(args, cfg) -> int:
     print("demo summary")
     print(f"  frames processed     {result['processed']} of {args.frames}")
     print(f"  solve rate           {100 * result['solve_rate']:.1f} %")
-    print(f"  latency (ms)         " + "  ".join(f"{k} {v:.1f}" for k, v in latency.items()))
+    print("  latency (ms)         " + "  ".join(f"{k} {v:.1f}" for k, v in latency.items()))
     print(f"  packets sent         {json.dumps(sent)}")
     print(f"  packets decoded (FC) {json.dumps(decoded)}")
     if errors:
