@@ -24,8 +24,8 @@ BLENDS: dict[int, set] = {}
 
 def same_star(found: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """Per row: the HIP found is the true one or a component of the same blend."""
-    return np.array([f == t or f in BLENDS.get(int(t), ()) for f, t in zip(found, truth)],
-                    dtype=bool)
+    pairs = zip(found, truth, strict=True)
+    return np.array([f == t or f in BLENDS.get(int(t), ()) for f, t in pairs], dtype=bool)
 
 
 @lru_cache(maxsize=1)

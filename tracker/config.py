@@ -220,7 +220,8 @@ class IdentifyConfig:
 
     enabled: bool = knob(True, "identify stars and solve attitude")
     database: str | None = knob(None, "pattern database file; null = the catalogue/ "
-                                "patterns_*.npz whose field-of-view range holds the camera's", "path")
+                                "patterns_*.npz whose field-of-view range holds the "
+                                "camera's", "path")
     pattern_stars: int = knob(12, "brightest image stars whose triangles lost-in-space tries",
                               "stars", min=3, max=64)
     verify_stars: int = knob(40, "brightest image stars checked against a hypothesis",

@@ -1,0 +1,134 @@
+"""Bad input gives no attitude and a reason code, never an exception."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from identify_sim import camera, catalogue, random_rotation, synthetic_stars
+
+from tracker.config import ConfigError, IdentifyConfig
+from tracker.detect import STAR_DTYPE
+from tracker.identify import DatabaseError, make_solver
+from tracker.identify.database import PatternDatabase, default_database_dir, find_database
+
+
+@pytest.fixture(scope="module")
+def solver():
+    return make_solver(IdentifyConfig(), camera(16.0), catalogue())
+
+
+def _stars(xy, flux=None):
+    s = np.zeros(len(xy), dtype=STAR_DTYPE)
+    if len(xy):
+        s["x"], s["y"] = np.asarray(xy, dtype=float).T
+        s["flux"] = 1000.0 if flux is None else flux
+    return s
+
+
+def _check_failed(sol, reason):
+    assert not sol.ok
+    assert sol.reason == reason
+    assert sol.R is None and sol.to_json() is None
+    assert np.all(sol.hip == 0)
+
+
+@pytest.mark.parametrize("n", [0, 1, 2])
+def test_fewer_than_three_stars(solver, n):
+    _check_failed(solver.solve(_stars([[100.0 + 50 * i, 200.0] for i in range(n)]), 0),
+                  "too_few_stars")
+
+
+def test_nan_and_infinite_centroids_are_ignored(solver):
+    rng = np.random.default_rng(21)
+    R = random_rotation(rng)
+    stars, truth = synthetic_stars(camera(16.0), R, rng)
+    stars["x"][::7] = np.nan
+    stars["flux"][1] = np.inf
+    solver.reset()
+    sol = solver.solve(stars, 0)
+    assert sol.ok
+    assert sol.hip[0] == truth[0] or sol.hip[0] == 0
+    assert np.all(sol.hip[::7] == 0)
+    assert sol.hip[1] == 0
+    _check_failed(solver.solve(_stars([[np.nan, 1.0]] * 5), 0), "too_few_stars")
+
+
+def test_duplicated_centroids_count_once(solver):
+    """The same three stars given five times each are still three stars."""
+    _check_failed(solver.solve(_stars([[100.0, 100.0], [400.0, 300.0], [800.0, 900.0]] * 5),
+                               0), "too_few_stars")
+    rng = np.random.default_rng(22)
+    stars, _ = synthetic_stars(camera(16.0), random_rotation(rng), rng)
+    doubled = np.concatenate([stars, stars])
+    solver.reset()
+    sol = solver.solve(doubled, 0)
+    assert sol.ok
+    assert sol.matched == np.count_nonzero(sol.hip[:len(stars)])
+    assert np.all(sol.hip[len(stars):] == 0)
+
+
+def test_only_false_stars_give_no_attitude(solver):
+    """Random points: no false solve in 30 frames of 8-40 points (the model allows 1e-6)."""
+    rng = np.random.default_rng(23)
+    for i in range(30):
+        n = 8 + i
+        sol = solver.solve(_stars(rng.uniform([0, 0], [1599, 1299], size=(n, 2)),
+                                  rng.uniform(100, 5000, n)), 0)
+        assert not sol.ok
+        assert sol.reason in ("no_match", "not_verified", "timeout")
+
+
+def test_input_without_coordinates_is_bad_input(solver):
+    _check_failed(solver.solve(np.zeros(5, dtype=[("a", float)]), 0), "bad_input")
+    _check_failed(solver.solve([1, 2, 3], 0), "bad_input")
+
+
+def test_database_for_another_field_of_view_gives_wrong_fov():
+    db8 = default_database_dir() / "patterns_ov2311_8mm.npz"
+    solver = make_solver(IdentifyConfig(database=str(db8)), camera(16.0), catalogue())
+    rng = np.random.default_rng(24)
+    stars, _ = synthetic_stars(camera(16.0), random_rotation(rng), rng)
+    _check_failed(solver.solve(stars, 0), "wrong_fov")
+    assert "built for" in solver.fov_error
+
+
+def test_no_database_fits_raises_a_config_error():
+    with pytest.raises(DatabaseError, match=r"no pattern database for a 1\.77 deg diagonal"):
+        make_solver(IdentifyConfig(), camera(200.0), catalogue())
+    assert issubclass(DatabaseError, ConfigError)
+
+
+def test_each_committed_database_is_found_for_its_lens():
+    for focal in (8, 12, 16, 25):
+        path = find_database(camera(float(focal)).fov_diagonal_rad)
+        assert path.name == f"patterns_ov2311_{focal}mm.npz"
+
+
+def test_corrupted_database_is_refused(tmp_path):
+    src = default_database_dir() / "patterns_ov2311_8mm.npz"
+    with np.load(src) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    arrays["pair_a"] = arrays["pair_a"].copy()
+    arrays["pair_a"][0] ^= 1
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, **arrays)
+    with pytest.raises(DatabaseError, match="SHA-256 of the arrays does not match"):
+        PatternDatabase.load(bad)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(DatabaseError, match="not a readable pattern database"):
+        PatternDatabase.load(tmp_path / "junk.npz")
+    with pytest.raises(DatabaseError, match="pattern database not found"):
+        PatternDatabase.load(tmp_path / "missing.npz")
+
+
+def test_committed_databases_match_their_checksum_files():
+    import hashlib
+
+    for path in sorted(default_database_dir().glob("patterns_*.npz")):
+        expected = (path.parent / f"{path.name}.sha256").read_text().split()[0]
+        assert hashlib.sha256(path.read_bytes()).hexdigest() == expected
+        meta = json.loads(str(np.load(path)["meta"]))
+        assert path.stat().st_size < 8e6
+        assert meta["fov_min_deg"] < math.degrees(camera(16.0).fov_diagonal_rad) or \
+            "16mm" not in path.name

@@ -1,0 +1,107 @@
+"""Match image stars to catalogue stars predicted by an attitude; the false-match odds.
+
+Projection: catalogue stars within the field's half-diagonal of the
+boresight go through the camera model; those landing in the image are the
+predictions. Each image star takes the nearest prediction within a radius
+(in pixels); a prediction claimed twice goes to the nearer star.
+
+Probability that a wrong attitude verifies (the model behind ``prob_false``):
+under a wrong hypothesis the catalogue stars land at places unrelated to the
+image stars, so each of the ``n`` image stars that were not used to form the
+hypothesis falls within ``r`` pixels of one of the ``m`` predictions with
+probability p = min(1, m * pi r^2 / (W H)) (uniform positions). The chance
+that ``k`` or more of them match is the binomial tail
+P(X >= k | n, p). Every hypothesis tried in the frame is another chance, so
+the per-frame probability is bounded by ``hypotheses * tail`` (union bound).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tracker.camera import CameraModel
+
+__all__ = ["Projector", "match_nearest", "binomial_tail", "false_match_probability"]
+
+
+class Projector:
+    """Predicts where catalogue stars fall in the image for an attitude R.
+
+    ``vectors`` (N, 3) are ICRS unit vectors (the catalogue's or the
+    database's); ``margin_px`` keeps predictions this far inside the image.
+    """
+
+    def __init__(self, camera: CameraModel, vectors: np.ndarray, margin_px: float = 0.0
+                 ) -> None:
+        self.camera = camera
+        self.vectors = np.ascontiguousarray(vectors, dtype=np.float64)
+        self.margin_px = margin_px
+        # half-diagonal plus a pixel of slack
+        self._cos_half = math.cos(camera.fov_diagonal_rad / 2 + 2.0 / camera.f_px)
+        self._dots = np.empty(len(self.vectors))
+
+    def predict(self, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Indices (into ``vectors``) and pixel positions (m, 2) of stars in the image."""
+        np.dot(self.vectors, R[2], out=self._dots)
+        near = np.flatnonzero(self._dots > self._cos_half)
+        cam = self.vectors[near] @ R.T
+        pix = self.camera.vector_to_pixel(cam)
+        inside = self.camera.in_frame(pix, self.margin_px)
+        return near[inside], pix[inside]
+
+
+def match_nearest(xy: np.ndarray, pred: np.ndarray, radius: float) -> tuple[np.ndarray,
+                                                                             np.ndarray]:
+    """Pair image stars ``xy`` (n, 2) with predictions ``pred`` (m, 2) within ``radius``.
+
+    Returns (index into pred per image star, -1 if none; distance in pixels).
+    Each prediction goes to at most one image star, the nearer one.
+    """
+    n = len(xy)
+    idx = np.full(n, -1, dtype=np.int64)
+    dist = np.full(n, np.inf)
+    if n == 0 or len(pred) == 0:
+        return idx, dist
+    d2 = np.square(xy[:, None, 0] - pred[None, :, 0]) + np.square(xy[:, None, 1] - pred[None, :, 1])
+    best = np.argmin(d2, axis=1)
+    bd2 = d2[np.arange(n), best]
+    ok = bd2 <= radius * radius
+    if not np.any(ok):
+        return idx, dist
+    # resolve predictions claimed by more than one star: keep the nearest claim
+    cand = np.flatnonzero(ok)
+    order = cand[np.lexsort((bd2[cand], best[cand]))]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = best[order][1:] != best[order][:-1]
+    winners = order[first]
+    idx[winners] = best[winners]
+    dist[winners] = np.sqrt(bd2[winners])
+    return idx, dist
+
+
+def binomial_tail(k: int, n: int, p: float) -> float:
+    """P(X >= k) for X ~ Binomial(n, p)."""
+    if k <= 0:
+        return 1.0
+    if k > n:
+        return 0.0
+    if p >= 1.0:
+        return 1.0
+    total = 0.0
+    for i in range(k, n + 1):
+        total += math.comb(n, i) * p ** i * (1.0 - p) ** (n - i)
+    return min(1.0, total)
+
+
+def false_match_probability(matched_extra: int, tested: int, predictions: int, radius_px: float,
+                            area_px: float, hypotheses: int) -> float:
+    """Per-frame probability that a wrong attitude gives this many matches (module docstring).
+
+    ``matched_extra`` of the ``tested`` image stars outside the hypothesis
+    matched one of ``predictions`` catalogue stars within ``radius_px``;
+    ``hypotheses`` were tried in the frame.
+    """
+    p = min(1.0, predictions * math.pi * radius_px * radius_px / area_px)
+    return min(1.0, max(1, hypotheses) * binomial_tail(matched_extra, tested, p))
