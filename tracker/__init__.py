@@ -1,0 +1,30 @@
+"""tracker: a star tracker for a Raspberry Pi 5 with an OV2311 camera.
+
+Each frame flows one way::
+
+    capture -> detect -> identify -> attitude -> link
+
+* :mod:`tracker.capture` delivers frames (replayed files; picamera2 or V4L2
+  on the Pi) as :class:`~tracker.capture.base.Frame` or
+  :class:`~tracker.capture.base.FrameError`.
+* :mod:`tracker.detect` finds stars with a fixed-memory detector
+  (``make_detector(cfg.detect, shape, bit_depth).detect(image)``).
+* :mod:`tracker.identify` identifies them lost in space or by tracking and
+  solves the attitude (``make_solver(cfg.identify, camera, catalogue)``);
+  :mod:`tracker.attitude` holds the conventions and Wahba's problem.
+* :mod:`tracker.protocol` frames packets for the flight computer, as
+  ``docs/protocol.md`` specifies, and runs the serial link.
+* :mod:`tracker.pipeline` chains detect and identify for one frame;
+  :mod:`tracker.service` is the daemon around it.
+* :mod:`tracker.sim` renders synthetic frames with truth;
+  :mod:`tracker.catalogue` loads the bundled Hipparcos stars;
+  :mod:`tracker.camera` maps pixels to directions.
+
+Conventions: pixel (0, 0) is the centre of the top-left pixel, x = column,
+y = row; camera +Z is the boresight, +X toward increasing x; the attitude
+quaternion [w, x, y, z] (w >= 0) rotates ICRS into the camera frame
+(v_cam = R v_icrs); radians inside, degrees and arcseconds only at the
+edges with the unit in the name. The README says how to run everything.
+"""
+
+__version__ = "0.1.0"
