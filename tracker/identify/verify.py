@@ -57,27 +57,46 @@ def match_nearest(xy: np.ndarray, pred: np.ndarray, radius: float) -> tuple[np.n
     """Pair image stars ``xy`` (n, 2) with predictions ``pred`` (m, 2) within ``radius``.
 
     Returns (index into pred per image star, -1 if none; distance in pixels).
-    Each prediction goes to at most one image star, the nearer one.
+    Each image star takes its nearest prediction; a prediction claimed by
+    more than one star goes to the nearest claim, the others get -1.
+
+    Cost O((n + m) log m + pairs): predictions are sorted by x and each star
+    looks only at those within ``radius`` in x, so tracking 200 stars
+    against 1,000 predictions compares a few thousand pairs, not 200,000.
     """
     n = len(xy)
     idx = np.full(n, -1, dtype=np.int64)
     dist = np.full(n, np.inf)
     if n == 0 or len(pred) == 0:
         return idx, dist
-    d2 = np.square(xy[:, None, 0] - pred[None, :, 0]) + np.square(xy[:, None, 1] - pred[None, :, 1])
-    best = np.argmin(d2, axis=1)
-    bd2 = d2[np.arange(n), best]
-    ok = bd2 <= radius * radius
-    if not np.any(ok):
+    order = np.argsort(pred[:, 0], kind="stable")
+    px = pred[order, 0]
+    lo = np.searchsorted(px, xy[:, 0] - radius, side="left")
+    hi = np.searchsorted(px, xy[:, 0] + radius, side="right")
+    counts = hi - lo
+    total = int(counts.sum())
+    if total == 0:
         return idx, dist
-    # resolve predictions claimed by more than one star: keep the nearest claim
-    cand = np.flatnonzero(ok)
-    order = cand[np.lexsort((bd2[cand], best[cand]))]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = best[order][1:] != best[order][:-1]
-    winners = order[first]
-    idx[winners] = best[winners]
-    dist[winners] = np.sqrt(bd2[winners])
+    star = np.repeat(np.arange(n), counts)
+    first = np.cumsum(counts) - counts
+    cand = order[lo[star] + np.arange(total) - first[star]]
+    d2 = np.square(xy[star, 0] - pred[cand, 0]) + np.square(xy[star, 1] - pred[cand, 1])
+    near = d2 <= radius * radius
+    star, cand, d2 = star[near], cand[near], d2[near]
+    if len(star) == 0:
+        return idx, dist
+    # each star's nearest candidate: sort by (star, d2) and keep the first per star
+    by_star = np.lexsort((d2, star))
+    keep = np.ones(len(by_star), dtype=bool)
+    keep[1:] = star[by_star][1:] != star[by_star][:-1]
+    best_star, best_pred, best_d2 = star[by_star][keep], cand[by_star][keep], d2[by_star][keep]
+    # a prediction claimed by several stars goes to the nearest claim
+    by_pred = np.lexsort((best_d2, best_pred))
+    win = np.ones(len(by_pred), dtype=bool)
+    win[1:] = best_pred[by_pred][1:] != best_pred[by_pred][:-1]
+    winners = by_pred[win]
+    idx[best_star[winners]] = best_pred[winners]
+    dist[best_star[winners]] = np.sqrt(best_d2[winners])
     return idx, dist
 
 
