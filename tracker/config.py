@@ -212,6 +212,9 @@ class DetectConfig:
     max_pixels_above: int = knob(262144, "default: pixels above threshold examined per "
                                  "frame; more raise the threshold (reason 'crowded')",
                                  "pixels", min=1, max=100000000)
+    threads: int = knob(2, "default: threads sharing the full-frame median and Gaussian "
+                        "filters, in horizontal slabs (1 = the calling thread alone; the Pi 5 "
+                        "has 4 cores)", "threads", min=1, max=16)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,8 @@ Both grids then pass a 3x3 median (a tile swamped by a bright star or a
 cluster takes its neighbours' value), and noise is floored at ``floor``.
 :meth:`BackgroundGrid.upsample` interpolates a grid bilinearly to the full
 frame, which follows gradients and glare on scales of a few tiles;
-:meth:`BackgroundGrid.at` reads a grid at single pixels (nearest tile).
+:meth:`BackgroundGrid.at` reads a grid at single pixels (nearest tile);
+:meth:`BackgroundGrid.skewness` gives the typical skewness of the tiles.
 All buffers are made once.
 """
 
@@ -62,6 +63,8 @@ class BackgroundGrid:
         self.index = np.ascontiguousarray(index.reshape(ny, nx, -1))
         m = self.index.shape[-1]
         self.samples = np.zeros(self.index.shape, np.float32)
+        self.minus_samples = np.zeros(self.index.shape, np.float32)
+        self.int_samples = np.zeros(self.index.shape, np.uint16)  # reads of uint16 frames
         self.middle = self.samples[..., m // 4: m - m // 4]
         self.deviation = np.zeros(self.middle.shape, np.float32)
         self.raw = np.zeros(self.grid_shape, np.float32)
@@ -69,6 +72,11 @@ class BackgroundGrid:
         self.upper = np.zeros(self.grid_shape, np.float32)
         self._upper = int(round(_ONE_SIGMA_ABOVE * (m - 1)))
         self.trim_dev = np.zeros((ny, nx, max(m - 2, 0)), np.float32)
+        self.trim_pow = np.zeros(self.trim_dev.shape, np.float32)
+        self.moment2 = np.zeros(self.grid_shape, np.float32)
+        self.moment3 = np.zeros(self.grid_shape, np.float32)
+        self.spread3 = np.zeros(self.grid_shape, np.float32)  # m2^1.5
+        self.star_free = np.zeros(self.grid_shape, np.bool_)
 
         tile_rows = _tile_of(rows, ny, layout.pad, layout.full_shape[0])
         tile_cols = _tile_of(cols, nx, layout.pad, layout.stride)
@@ -76,8 +84,12 @@ class BackgroundGrid:
         self.tile_scratch = np.zeros(int(capacity), np.int32)
 
     def stats(self, padded: np.ndarray, level: np.ndarray, noise: np.ndarray,
-              floor: float, upper: bool = False) -> None:
+              floor: float, upper: bool = False, minus: np.ndarray | None = None) -> None:
         """Per-tile level and noise (grid shape, units of ``padded``) into the given arrays.
+
+        ``padded`` is float32 or uint16. With ``minus`` (float32, padded like
+        ``padded``) the statistics are those of ``padded - minus``, computed
+        on the sampled pixels only.
 
         With ``upper`` the noise is also at least the distance from the level
         up to the 84.13th percentile, and at least the standard deviation of
@@ -88,7 +100,14 @@ class BackgroundGrid:
         middle-half estimate would see no spread at all. For Gaussian noise
         all three agree.
         """
-        np.take(padded.ravel(), self.index, out=self.samples, mode="clip")
+        if padded.dtype == self.int_samples.dtype:
+            np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
+            np.copyto(self.samples, self.int_samples)
+        else:
+            np.take(padded.ravel(), self.index, out=self.samples, mode="clip")
+        if minus is not None:
+            np.take(minus.ravel(), self.index, out=self.minus_samples, mode="clip")
+            np.subtract(self.samples, self.minus_samples, out=self.samples)
         self.samples.sort(axis=-1)
         np.mean(self.middle, axis=-1, out=self.level_raw)
         self._smooth(self.level_raw, level)
@@ -102,13 +121,37 @@ class BackgroundGrid:
             trimmed = self.samples[..., 1:-1]
             np.mean(trimmed, axis=-1, out=self.upper)
             np.subtract(trimmed, self.upper[..., None], out=self.trim_dev)
-            np.square(self.trim_dev, out=self.trim_dev)
-            np.mean(self.trim_dev, axis=-1, out=self.upper)
-            np.sqrt(self.upper, out=self.upper)
+            np.multiply(self.trim_dev, self.trim_dev, out=self.trim_pow)
+            np.mean(self.trim_pow, axis=-1, out=self.moment2)
+            np.multiply(self.trim_pow, self.trim_dev, out=self.trim_pow)
+            np.mean(self.trim_pow, axis=-1, out=self.moment3)  # for skewness()
+            np.sqrt(self.moment2, out=self.upper)
             np.multiply(self.upper, 1.0 / _TRIMMED_STD, out=self.upper)
             np.maximum(self.raw, self.upper, out=self.raw)
         np.maximum(self.raw, floor, out=self.raw)
         self._smooth(self.raw, noise)
+
+    def skewness(self, star_free_sigma: float = 5.0, min_fraction: float = 0.5) -> float:
+        """Median skewness of the star-free tiles of the last :meth:`stats` call (``upper``).
+
+        A tile is star-free when its highest sample is less than
+        ``star_free_sigma`` times its noise above its level. Each such tile's
+        samples without their lowest and highest (as for the trimmed noise)
+        give m3 / m2^1.5 (0 for a tile with no spread). About 0 for Gaussian
+        noise; positive for photon noise of a few counts per pixel. 0 when
+        fewer than ``min_fraction`` of the tiles are star-free (a field so
+        crowded that star wings would pass for skew).
+        """
+        np.subtract(self.samples[..., -1], self.level_raw, out=self.spread3)
+        np.multiply(self.raw, star_free_sigma, out=self.upper)
+        np.less(self.spread3, self.upper, out=self.star_free)
+        if np.count_nonzero(self.star_free) < min_fraction * self.star_free.size:
+            return 0.0
+        np.maximum(self.moment2, 1e-12, out=self.moment2)  # no spread: m3 = 0 too
+        np.sqrt(self.moment2, out=self.spread3)
+        np.multiply(self.spread3, self.moment2, out=self.spread3)
+        np.divide(self.moment3, self.spread3, out=self.spread3)
+        return float(np.median(self.spread3[self.star_free]))
 
     def _smooth(self, src: np.ndarray, dst: np.ndarray) -> None:
         if min(self.grid_shape) >= 3:

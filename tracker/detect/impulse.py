@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from tracker.detect.layout import PaddedLayout
+from tracker.detect.slabs import SlabRunner
 
 __all__ = ["ImpulseFilter", "psf_contrast"]
 
@@ -53,20 +54,26 @@ class _TestBuffers:
         self.out = np.zeros(shape, np.bool_)
 
 
-def _impulse_test(w: np.ndarray, m: np.ndarray, b: np.ndarray, s: np.ndarray,
-                  k_sigma: float, contrast: float, buf: _TestBuffers, n: int) -> np.ndarray:
-    """|w - m| > k_sigma s and |w - m| > contrast (max(w, m) - b), on the first n rows."""
+def _impulse_test(w: np.ndarray, m: np.ndarray, b: np.ndarray, limit: np.ndarray,
+                  contrast: float, buf: _TestBuffers, n: int) -> np.ndarray:
+    """|w - m| > limit and |w - m| > contrast (max(w, m) - b), on the first n rows.
+
+    Computed in float32 whatever the inputs' dtypes.
+    """
     t1, t2, b1, out = buf.t1[:n], buf.t2[:n], buf.b1[:n], buf.out[:n]
-    np.subtract(w, m, out=t1)
+    np.subtract(w, m, out=t1, dtype=np.float32)
     np.abs(t1, out=t1)
     np.maximum(w, m, out=t2)
     np.subtract(t2, b, out=t2)
     np.multiply(t2, contrast, out=t2)
     np.greater(t1, t2, out=out)
-    np.multiply(s, k_sigma, out=t2)
-    np.greater(t1, t2, out=b1)
+    np.greater(t1, limit, out=b1)
     np.logical_and(out, b1, out=out)
     return out
+
+
+def _median3(src: np.ndarray, dst: np.ndarray) -> None:
+    cv2.medianBlur(src, 3, dst=dst)
 
 
 # Neighbour offsets (dy, dx): all eight, and the four met before a pixel in raster order.
@@ -75,21 +82,26 @@ _BEFORE = 4
 
 
 class ImpulseFilter:
-    """Finds and replaces impulses in frames held in padded buffers of ``layout``."""
+    """Finds and replaces impulses in frames held in padded buffers of ``layout``.
 
-    def __init__(self, layout: PaddedLayout, k_sigma: float, contrast: float,
-                 capacity: int) -> None:
+    Frames, their limits and the median are of ``dtype`` (float32 or uint16);
+    the median runs in ``threads`` slabs (tracker.detect.slabs).
+    """
+
+    def __init__(self, layout: PaddedLayout, contrast: float, capacity: int,
+                 dtype: type = np.float32, threads: int = 1) -> None:
         self.layout = layout
-        self.k_sigma = float(k_sigma)
         self.contrast = float(contrast)
         self.capacity = int(capacity)
-        self.median_pad, self.median = layout.buffer(np.float32)
-        self.diff_pad, self.diff = layout.buffer(np.float32)
+        self.median_pad, self.median = layout.buffer(dtype)
+        self.diff_pad, self.diff = layout.buffer(dtype)
         self.mask_pad, self.mask = layout.buffer(np.uint8)
+        self.slabs = SlabRunner(layout.rows, layout.cols, 1, threads, dtype)
         self.dense = _TestBuffers(layout.full_shape)
         self.sparse = _TestBuffers((self.capacity,))
         self.index = np.zeros(self.capacity, np.intp)
         self.values = np.zeros((4, self.capacity), np.float32)
+        self.reads = np.zeros(self.capacity, dtype)
         stride = layout.stride
         self.neighbour_offsets = np.array([dy * stride + dx for dy, dx in _EIGHT], np.intp)
         self.marks = np.zeros(layout.full_shape[0] * stride, np.uint8)
@@ -100,40 +112,46 @@ class ImpulseFilter:
         self.counts = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0}
 
     def run(self, work_pad: np.ndarray, work: np.ndarray, bg_pad: np.ndarray,
-            noise_pad: np.ndarray, limit: np.ndarray) -> dict:
+            limit_pad: np.ndarray, limit: np.ndarray) -> dict:
         """Replace impulses in ``work`` (interior view of ``work_pad``) in place; counts.
 
-        ``noise_pad`` is the pixel noise (padded like ``work_pad``) and
-        ``limit`` (frame shape) ``k_sigma`` times it: the first cut.
+        ``limit_pad`` (padded like ``work_pad``; ``limit`` its interior view)
+        is ``k_sigma`` times the local pixel noise; ``bg_pad`` (float32) the
+        background.
         """
         counts = self.counts
         for key in counts:
             counts[key] = 0
-        cv2.medianBlur(work, 3, dst=self.median)
-        cv2.absdiff(work, self.median, dst=self.diff)
-        cv2.compare(self.diff, limit, cv2.CMP_GT, dst=self.mask)
+        self.slabs.run(_median3, work, self.median)
+        self.slabs.rows(lambda a, b: self._first_cut(work[a:b], limit[a:b], a, b))
         n = self.layout.nonzero(self.mask_pad, self.index)
         if n == 0:
             return counts
         if n > self.capacity:
-            imp = _impulse_test(work_pad, self.median_pad, bg_pad, noise_pad, self.k_sigma,
-                                self.contrast, self.dense, work_pad.shape[0])
+            imp = _impulse_test(work_pad, self.median_pad, bg_pad, limit_pad, self.contrast,
+                                self.dense, work_pad.shape[0])
             np.copyto(work_pad, self.median_pad, where=imp)
             counts["impulse_pixels"] = int(np.count_nonzero(imp))
             return counts
-        self._sparse(n, work_pad, bg_pad, noise_pad)
+        self._sparse(n, work_pad, bg_pad, limit_pad)
         return counts
 
+    def _first_cut(self, work: np.ndarray, limit: np.ndarray, a: int, b: int) -> None:
+        """mask = |work - median| > limit on rows [a, b) of the frame."""
+        cv2.absdiff(work, self.median[a:b], dst=self.diff[a:b])
+        cv2.compare(self.diff[a:b], limit, cv2.CMP_GT, dst=self.mask[a:b])
+
     def _sparse(self, n: int, work_pad: np.ndarray, bg_pad: np.ndarray,
-                noise_pad: np.ndarray) -> None:
+                limit_pad: np.ndarray) -> None:
         idx = self.index[:n]
-        w, m, b, s = (v[:n] for v in self.values)
+        w, m, b, lim = (v[:n] for v in self.values)
         flat = work_pad.ravel()
-        np.take(flat, idx, out=w, mode="clip")
-        np.take(self.median_pad.ravel(), idx, out=m, mode="clip")
+        reads = self.reads[:n]
+        for src, dst in ((flat, w), (self.median_pad.ravel(), m), (limit_pad.ravel(), lim)):
+            np.take(src, idx, out=reads, mode="clip")
+            np.copyto(dst, reads)
         np.take(bg_pad.ravel(), idx, out=b, mode="clip")
-        np.take(noise_pad.ravel(), idx, out=s, mode="clip")
-        imp = _impulse_test(w, m, b, s, self.k_sigma, self.contrast, self.sparse, n)
+        imp = _impulse_test(w, m, b, lim, self.contrast, self.sparse, n)
         np.copyto(w, m, where=imp)
         np.put(flat, idx, w, mode="clip")
         self._count(n, idx, imp)

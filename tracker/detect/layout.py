@@ -23,6 +23,7 @@ class PaddedLayout:
         self.pad = int(pad)
         self.stride = -(-(self.cols + 2 * self.pad) // 8) * 8
         self.full_shape = (self.rows + 2 * self.pad, self.stride)
+        self.word_hits = np.zeros(self.full_shape[0] * self.stride // 8, np.bool_)
 
     def buffer(self, dtype: type) -> tuple[np.ndarray, np.ndarray]:
         """A zeroed padded array and its (rows, cols) interior view."""
@@ -39,16 +40,18 @@ class PaddedLayout:
         rows, cols = np.divmod(flat, self.stride)
         return rows - self.pad, cols - self.pad
 
-    @staticmethod
-    def nonzero(mask_full: np.ndarray, out: np.ndarray) -> int:
+    def nonzero(self, mask_full: np.ndarray, out: np.ndarray) -> int:
         """Flat indices of the nonzero bytes of a padded uint8 mask into ``out``.
 
         Returns how many there are; when that exceeds ``len(out)`` nothing is
-        written. The scan reads eight pixels per step; its temporaries are
-        proportional to the number of nonzero pixels, not to the frame.
+        written. The scan reads eight pixels per step (marking the nonzero
+        words in a bool buffer first, where numpy's nonzero skips runs of
+        zeros quickly); its temporaries are proportional to the number of
+        nonzero pixels, not to the frame.
         """
         flat = mask_full.ravel()
-        words = np.flatnonzero(flat.view(np.uint64))
+        np.not_equal(flat.view(np.uint64), 0, out=self.word_hits)
+        words = np.flatnonzero(self.word_hits)
         if len(words) == 0:
             return 0
         octets = flat.reshape(-1, 8)[words]

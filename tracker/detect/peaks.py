@@ -1,16 +1,17 @@
 """Candidate stars: local maxima of the matched-filtered image above a noise threshold.
 
-The background-subtracted, impulse-cleaned frame is convolved with a
-Gaussian of the PSF's sigma (the matched filter for a Gaussian PSF in
-background noise: it maximises a point source's SNR). A pixel is a
-candidate when its filtered value exceeds ``threshold`` (an image of
-``k`` times the filtered noise, per pixel) and is a local maximum: strictly
+The impulse-cleaned frame is convolved with a Gaussian of the PSF's sigma
+(the matched filter for a Gaussian PSF in background noise: it maximises a
+point source's SNR). A pixel is a candidate when its filtered value exceeds
+``threshold`` (an image of the background plus ``k`` times the filtered
+noise, per pixel) and is a local maximum: strictly
 above the four neighbours met before it in raster order and not below the
 four after it, so a flat top (a saturated star) gives one candidate, not a
 plateau of them.
 
-Close pairs: each candidate is compared with the brightest brighter
-candidate within ``radius`` px. It is kept as a separate star only if the
+Candidates are ranked by their filtered value above the background (read
+at the candidate pixel). Close pairs: each candidate is compared with the
+brightest brighter candidate within ``radius`` px. It is kept as a separate star only if the
 filtered image dips between the two, at 1/4, 1/2 and 3/4 of the way, by
 at least ``dip_sigma`` times the filtered noise below the fainter peak;
 otherwise it is a bump on the brighter star's profile and is dropped.
@@ -20,7 +21,8 @@ blended.
 Only pixels above the threshold are visited (gathered into buffers of
 ``pixel_capacity`` entries). When more pixels than that exceed it (a frame
 washed by light), the threshold is doubled until they fit and the frame is
-marked crowded.
+marked crowded (the threshold's height above the background is doubled
+by the caller's ``raise_threshold``).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import cv2
 import numpy as np
 
 from tracker.detect.layout import PaddedLayout
+from tracker.detect.slabs import SlabRunner
 
 __all__ = ["PeakFinder"]
 
@@ -40,10 +43,15 @@ _NONE = np.iinfo(np.int32).max
 
 
 class PeakFinder:
-    """Local maxima of a filtered image held in padded buffers of ``layout``."""
+    """Local maxima of a filtered image held in padded buffers of ``layout``.
+
+    The threshold test runs on the row slabs of ``slabs``
+    (tracker.detect.slabs), if given.
+    """
 
     def __init__(self, layout: PaddedLayout, radius: int, dip_sigma: float,
-                 pixel_capacity: int, capacity: int) -> None:
+                 pixel_capacity: int, capacity: int, slabs: SlabRunner | None = None) -> None:
+        self.slabs = slabs or SlabRunner(layout.rows, layout.cols, 0, 1, np.float32)
         self.layout = layout
         self.stride = layout.stride
         self.dip_sigma = float(dip_sigma)
@@ -71,6 +79,7 @@ class PeakFinder:
         self.cand = np.zeros(self.capacity, np.intp)
         self.cand_values = np.zeros(self.capacity, np.float32)
         self.cand_noise = np.zeros(self.capacity, np.float32)
+        self.cand_bg = np.zeros(self.capacity, np.float32)
         self.pair_index = np.zeros((self.capacity, p), np.intp)
         self.pair_rank = np.zeros((self.capacity, p), np.int32)
         self.nearest = np.zeros(self.capacity, np.intp)
@@ -84,30 +93,39 @@ class PeakFinder:
         self._n_pixels = 0
 
     def find(self, filt_pad: np.ndarray, filt: np.ndarray, threshold: np.ndarray,
-             noise_at) -> int:
+             bg_pad: np.ndarray, raise_threshold, noise_at) -> int:
         """Candidates into ``cand[:n]`` (padded flat indices, brightest first); returns n.
 
-        ``filt`` is the interior view of ``filt_pad``; ``threshold`` (frame
-        shape) the detection level in filtered ADU (doubled in place when
-        crowded); ``noise_at(flat, out)`` gives the filtered noise at padded
-        flat indices. Sets ``blended[:n]`` and ``crowded``.
+        ``filt`` is the interior view of ``filt_pad``, the filtered image with
+        its background, which ``bg_pad`` holds; ``threshold``
+        (frame shape, float32) the detection level, background
+        included; ``raise_threshold(factor)`` refills it with its height above
+        the background multiplied by ``factor`` (used when crowded);
+        ``noise_at(flat, out)`` gives the filtered noise at padded flat
+        indices. ``cand_values[:n]`` are filtered values above the
+        background. Sets ``blended[:n]`` and ``crowded``.
         """
         self.crowded = False
-        n = self._above(filt, threshold)
+        n = self._above(filt, threshold, raise_threshold)
         n = self._local_maxima(n, filt_pad)
-        n = self._rank(n, noise_at)
+        n = self._rank(n, bg_pad, noise_at)
         return self._deblend(n, filt_pad)
 
-    def _above(self, filt: np.ndarray, threshold: np.ndarray) -> int:
-        cv2.compare(filt, threshold, cv2.CMP_GT, dst=self.mask)
+    def _compare(self, filt: np.ndarray, threshold: np.ndarray) -> None:
+        mask = self.mask
+        self.slabs.rows(lambda a, b: cv2.compare(filt[a:b], threshold[a:b], cv2.CMP_GT,
+                                                 dst=mask[a:b]))
+
+    def _above(self, filt: np.ndarray, threshold: np.ndarray, raise_threshold) -> int:
+        self._compare(filt, threshold)
         n = self.layout.nonzero(self.mask_pad, self.pixels)
         doublings = 0
         while n > self.pixel_capacity and doublings < _MAX_DOUBLINGS:
             self.crowded = True
-            np.multiply(threshold, 2.0, out=threshold)
-            cv2.compare(filt, threshold, cv2.CMP_GT, dst=self.mask)
-            n = self.layout.nonzero(self.mask_pad, self.pixels)
             doublings += 1
+            raise_threshold(2.0 ** doublings)
+            self._compare(filt, threshold)
+            n = self.layout.nonzero(self.mask_pad, self.pixels)
         if n > self.pixel_capacity:
             n = 0
         self._n_pixels = n
@@ -133,19 +151,24 @@ class PeakFinder:
         np.logical_and(is_max, tmp, out=is_max)
         return int(np.count_nonzero(is_max))
 
-    def _rank(self, m: int, noise_at) -> int:
-        """Maxima sorted by filtered value, brightest first, at most ``capacity``."""
+    def _rank(self, m: int, bg_pad: np.ndarray, noise_at) -> int:
+        """Maxima sorted by filtered value above the background, brightest first.
+
+        At most ``capacity`` of them.
+        """
         if m == 0:
             return 0
         n_px = self._n_pixels
         maxima = np.compress(self.is_max[:n_px], self.pixels[:n_px])
         values = np.compress(self.is_max[:n_px], self.pixel_values[:n_px])
+        values -= np.take(bg_pad.ravel(), maxima, mode="clip")
         order = np.argsort(-values, kind="stable")[: self.capacity]
         if m > self.capacity:
             self.crowded = True
         n = len(order)
         np.take(maxima, order, out=self.cand[:n])
         np.take(values, order, out=self.cand_values[:n])
+        np.take(bg_pad.ravel(), self.cand[:n], out=self.cand_bg[:n], mode="clip")
         noise_at(self.cand[:n], self.cand_noise[:n])
         return n
 
@@ -172,6 +195,7 @@ class PeakFinder:
         np.take(filt_pad.ravel(), line_index, out=line, mode="clip")
         saddle = self.saddle[:n]
         np.min(line, axis=1, out=saddle)
+        np.subtract(saddle, self.cand_bg[:n], out=saddle)  # the background at the candidate
         values, noise = self.cand_values[:n], self.cand_noise[:n]
         np.minimum(saddle, values, out=saddle)
         keep = self.keep[:n]

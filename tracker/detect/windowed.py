@@ -17,7 +17,10 @@ gain = 1 + w^2 / s^2 one step lands on a noise-free Gaussian's centre
 to ``max_shift`` px from the candidate pixel.
 
 Window: the (2r+1)^2 pixels around the candidate pixel in the padded,
-background-subtracted image, r = ``radius``.
+background-subtracted image, r = ``radius``. The Gaussian weight is
+separable, so each iteration reduces the window to two weighted profiles
+(one per axis) and does the rest on them: two passes over the windows per
+iteration instead of a dozen.
 Results per star (all in ADU of the background-subtracted image):
 
 * ``dx, dy``: offset of the centre from the candidate pixel, px;
@@ -39,14 +42,20 @@ __all__ = ["WindowedCentroider"]
 
 
 class WindowedCentroider:
-    """Gaussian-windowed centroids in a padded image with rows of ``stride`` pixels."""
+    """Gaussian-windowed centroids in a padded image with rows of ``stride`` pixels.
+
+    The image is of ``dtype`` (float32 or uint16), its background float32.
+    """
 
     def __init__(self, stride: int, radius: int, weight_sigma: float, gain: float,
-                 iterations: int, tolerance: float, max_shift: float, capacity: int) -> None:
+                 iterations: int, tolerance: float, max_shift: float, capacity: int,
+                 dtype: type = np.float32) -> None:
         dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
         self.offsets = (dy * stride + dx).ravel().astype(np.intp)
         self.dx = dx.ravel().astype(np.float64)
         self.dy = dy.ravel().astype(np.float64)
+        self.side = 2 * radius + 1
+        self.axis = np.arange(-radius, radius + 1, dtype=np.float64)
         centre = (np.abs(dx) <= 1) & (np.abs(dy) <= 1)
         self.centre = np.flatnonzero(centre.ravel())
         k = len(self.offsets)
@@ -57,7 +66,7 @@ class WindowedCentroider:
         self.max_shift = float(max_shift)
         c = int(capacity)
         self.index = np.zeros((c, k), np.intp)
-        self.win = np.zeros((c, k), np.float32)
+        self.win = np.zeros((c, k), dtype)
         self.bgwin = np.zeros((c, k), np.float32)
         self.s = np.zeros((c, k), np.float64)
         self.ex = np.zeros((c, k), np.float64)
@@ -65,6 +74,8 @@ class WindowedCentroider:
         self.w = np.zeros((c, k), np.float64)
         self.ws = np.zeros((c, k), np.float64)
         self.t = np.zeros((c, k), np.float64)
+        # per-axis offsets, weights and weighted profiles, (c, side)
+        self.axis_work = np.zeros((6, c, self.side), np.float64)
         names = ("x0", "y0", "sum_ws", "sum_x", "sum_y", "step", "flux", "weighted", "sum_w2",
                  "mxx", "myy", "mxy", "size", "ellipticity", "snr", "peak", "raw_peak", "npix")
         self.v = {name: np.zeros(c, np.float64) for name in names}
@@ -91,12 +102,12 @@ class WindowedCentroider:
         x0.fill(0.0)
         y0.fill(0.0)
         for _ in range(self.iterations):
-            self._weights(n, x0, y0)
+            self._profiles(n, x0, y0, v)
             step = v["step"]
-            self._shift(n, v["sum_x"], self.ex, v, x0)
+            self._shift(v["sum_x"], v["sum_ws"], x0)
             np.abs(v["sum_x"], out=step)
             biggest = float(step.max())
-            self._shift(n, v["sum_y"], self.ey, v, y0)
+            self._shift(v["sum_y"], v["sum_ws"], y0)
             np.abs(v["sum_y"], out=step)
             if max(biggest, float(step.max())) < self.tolerance:
                 break
@@ -116,12 +127,29 @@ class WindowedCentroider:
         np.exp(w, out=w)
         np.multiply(w, self.s[:n], out=self.ws[:n])
 
-    def _shift(self, n: int, step: np.ndarray, e: np.ndarray, v: dict, pos: np.ndarray) -> None:
-        """pos += gain * sum(ws e) / sum(ws), clamped; step holds the move."""
-        ws = self.ws[:n]
-        sum_ws = v["sum_ws"]
-        np.sum(ws, axis=1, out=sum_ws)
-        np.einsum("ij,ij->i", ws, e[:n], out=step)
+    def _axis_weights(self, pos: np.ndarray, e: np.ndarray, w: np.ndarray) -> None:
+        """e = axis - pos and w = exp(-e^2 / (2 w^2)), (n, side)."""
+        np.subtract(self.axis[None, :], pos[:, None], out=e)
+        np.multiply(e, e, out=w)
+        np.multiply(w, -self.inv_two_w2, out=w)
+        np.exp(w, out=w)
+
+    def _profiles(self, n: int, x0: np.ndarray, y0: np.ndarray, v: dict) -> None:
+        """sum_ws = sum(W S), sum_x = sum(W S ex), sum_y = sum(W S ey) for W centred on (x0, y0)."""
+        ex, wx, ey, wy, px, py = (a[:n] for a in self.axis_work)
+        self._axis_weights(x0, ex, wx)
+        self._axis_weights(y0, ey, wy)
+        s = self.s[:n].reshape(n, self.side, self.side)  # (star, row = dy, column = dx)
+        np.einsum("nij,ni->nj", s, wy, out=px)  # column profile, weighted along y
+        np.einsum("nij,nj->ni", s, wx, out=py)  # row profile, weighted along x
+        np.multiply(px, wx, out=px)
+        np.multiply(py, wy, out=py)
+        np.sum(px, axis=1, out=v["sum_ws"])
+        np.einsum("ij,ij->i", px, ex, out=v["sum_x"])
+        np.einsum("ij,ij->i", py, ey, out=v["sum_y"])
+
+    def _shift(self, step: np.ndarray, sum_ws: np.ndarray, pos: np.ndarray) -> None:
+        """pos += gain * step / sum_ws, clamped; step (sum(W S e) on entry) holds the move."""
         # a window whose weighted sum is not positive (noise) keeps its position
         np.divide(step, sum_ws, out=step, where=sum_ws > 0)
         step[sum_ws <= 0] = 0.0
