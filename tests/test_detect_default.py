@@ -264,3 +264,22 @@ def test_sparse_photon_noise_moves_the_threshold_and_gives_no_false_stars():
     gaussian = np.rint(rng.normal(100.0, 5.0, shape)).astype(np.uint8)
     assert det.detect(gaussian).count == 0
     assert CFG.threshold_sigma - 0.01 <= det.threshold_k < CFG.threshold_sigma + 0.5
+
+
+def test_broad_source_is_flagged_extended_and_stars_are_not():
+    """A nebula-like blob (sigma 4 px, flux/peak ~11x a star's) among point stars."""
+    rng = np.random.default_rng(21)
+    shape = (300, 300)
+    xs, ys = _grid_stars(5, shape, rng, spacing_margin=40)
+    frame = render_points(shape, xs, ys, np.full(len(xs), 6000.0), CLEAN, rng,
+                          noise_model="realistic")
+    yy, xx = np.mgrid[:300, :300]
+    blob = 60.0 * np.exp(-((xx - 122.5) ** 2 + (yy - 177.5) ** 2) / (2 * 4.0 ** 2))
+    image = np.clip(frame.image + np.rint(blob), 0, 1023).astype(np.uint16)
+    det = make_detector(CFG, shape, 10).detect(image)
+    near_blob = np.hypot(det.stars["x"] - 122.5, det.stars["y"] - 177.5) < 4
+    assert np.count_nonzero(near_blob) >= 1
+    assert np.all(det.stars["flags"][near_blob] & StarFlag.EXTENDED)
+    idx, _ = _match(xs, ys, det.stars)
+    assert (idx >= 0).all()
+    assert not np.any(det.stars["flags"][idx] & StarFlag.EXTENDED)

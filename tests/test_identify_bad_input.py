@@ -8,7 +8,7 @@ import pytest
 from identify_sim import camera, catalogue, random_rotation, synthetic_stars
 
 from tracker.config import ConfigError, IdentifyConfig
-from tracker.detect import STAR_DTYPE
+from tracker.detect import STAR_DTYPE, StarFlag
 from tracker.identify import DatabaseError, make_solver
 from tracker.identify.database import PatternDatabase, default_database_dir, find_database
 
@@ -132,3 +132,17 @@ def test_committed_databases_match_their_checksum_files():
         assert path.stat().st_size < 8e6
         assert meta["fov_min_deg"] < math.degrees(camera(16.0).fov_diagonal_rad) or \
             "16mm" not in path.name
+
+
+def test_extended_sources_are_not_identified(solver):
+    """Detector-flagged EXTENDED sources (nebulae, comets) take no HIP number."""
+    rng = np.random.default_rng(23)
+    R = random_rotation(rng)
+    stars, _ = synthetic_stars(camera(16.0), R, rng)
+    stars["flags"][:3] = StarFlag.EXTENDED        # the three brightest, say
+    solver.reset()
+    sol = solver.solve(stars, 0)
+    assert sol.ok and np.all(sol.hip[:3] == 0) and np.count_nonzero(sol.hip[3:]) >= 5
+    stars["flags"][:] = StarFlag.EXTENDED
+    solver.reset()
+    _check_failed(solver.solve(stars, 0), "too_few_stars")

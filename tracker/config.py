@@ -205,6 +205,9 @@ class DetectConfig:
                                 "only above this SNR", "sigma", min=0.0, max=1e6)
     elongation_max: float = knob(0.3, "default: flag ELONGATED above this ellipticity of "
                                  "the windowed moments", "ratio", min=0.0, max=1.0)
+    extended_ratio: float = knob(2.0, "default: flag EXTENDED an unsaturated source whose "
+                                 "flux/peak (its effective area) exceeds this multiple of "
+                                 "the frame's median", "ratio", min=1.0, max=100.0)
     saturation_adu: float | None = knob(None, "default: level flagged SATURATED; null = "
                                         "full scale of the bit depth", "ADU", min=1.0)
     max_candidates: int = knob(2048, "default: local maxima examined per frame (brightest "

@@ -136,7 +136,7 @@ typedef struct {
     float y; /* px: row; same origin */
     float flux; /* ADU: background-subtracted sum */
     uint32_t hip; /* -: Hipparcos number of the matched star, 0 if none */
-    uint16_t flags; /* -: StarFlag bits: 1 saturated, 2 edge, 4 elongated, 8 blended */
+    uint16_t flags; /* -: StarFlag bits: 1 saturated, 2 edge, 4 elongated, 8 blended, 16 extended */
 } st_centroids_item_t;
 
 typedef struct {

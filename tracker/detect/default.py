@@ -269,5 +269,23 @@ class DefaultDetector:
         flags[(v["ellipticity"][keep] > self.cfg.elongation_max)
               & (v["snr"][keep] >= self.cfg.sharp_min_snr)] |= StarFlag.ELONGATED
         flags[self.peaks.blended[:n][keep]] |= StarFlag.BLENDED
+        self._flag_extended(s[:count], flags)
         s["flags"][:count] = flags
         return count
+
+    def _flag_extended(self, stars: np.ndarray, flags: np.ndarray) -> None:
+        """EXTENDED: effective area flux/peak above ``extended_ratio`` x the frame's median.
+
+        A point source's flux/peak is fixed by the PSF (2 pi sigma^2 for a
+        Gaussian) whatever its brightness; a nebula, comet or lit branch
+        spreads its flux wider. The frame's own median is the reference, so
+        an unknown or field-varying PSF needs no configuration. Saturated
+        stars (flat tops) are neither judged nor part of the median; fewer
+        than five unsaturated sources give no reference.
+        """
+        unsat = (flags & StarFlag.SATURATED) == 0
+        if np.count_nonzero(unsat) < 5:
+            return
+        area = stars["flux"] / np.maximum(stars["peak"], 1e-12)
+        broad = unsat & (area > self.cfg.extended_ratio * np.median(area[unsat]))
+        flags[broad] |= StarFlag.EXTENDED

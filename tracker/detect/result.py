@@ -35,6 +35,8 @@ class StarFlag:
     EDGE = 2        # the spot touches the image border; centroid biased
     ELONGATED = 4   # second moments say streak or trail, not a point
     BLENDED = 8     # split from a segment shared with another star
+    EXTENDED = 16   # much broader than the frame's point sources: nebula, comet,
+                    # lit cloud or terrain; identification ignores it
 
 
 @dataclass

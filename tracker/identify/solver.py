@@ -45,6 +45,7 @@ from tracker.attitude import (
 )
 from tracker.camera import CameraModel
 from tracker.config import IdentifyConfig
+from tracker.detect.result import StarFlag
 from tracker.identify.database import BoundDatabase
 from tracker.identify.lost import TriangleSearch, triad_order
 from tracker.identify.verify import Projector, false_match_probability, match_nearest
@@ -167,7 +168,10 @@ class Solver:
     # -- input ---------------------------------------------------------------
 
     def _prepare(self, stars) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | str:
-        """(input indices sorted bright first, their xy, flux or None) or a reason code."""
+        """(input indices sorted bright first, their xy, flux or None) or a reason code.
+
+        Non-finite rows and sources flagged EXTENDED by the detector are left out.
+        """
         names = getattr(getattr(stars, "dtype", None), "names", None) or ()
         if "x" not in names or "y" not in names:
             return "bad_input"
@@ -177,6 +181,8 @@ class Solver:
         flux = (np.asarray(stars["flux"], dtype=np.float64) if has_flux
                 else -np.arange(len(x), dtype=np.float64))
         good = np.isfinite(x) & np.isfinite(y) & np.isfinite(flux)
+        if "flags" in names:   # nebulae, comets, lit terrain: not catalogue stars
+            good &= (np.asarray(stars["flags"]) & StarFlag.EXTENDED) == 0
         idx = np.flatnonzero(good)
         idx = idx[np.argsort(-flux[idx], kind="stable")]
         xy = np.stack((x[idx], y[idx]), axis=1)

@@ -263,7 +263,8 @@ MESSAGES: tuple[MessageDef, ...] = (
         _f("y", "f32", "px", "row; same origin"),
         _f("flux", "f32", "ADU", "background-subtracted sum"),
         _f("hip", "u32", "", "Hipparcos number of the matched star, 0 if none"),
-        _f("flags", "u16", "", "StarFlag bits: 1 saturated, 2 edge, 4 elongated, 8 blended"),
+        _f("flags", "u16", "", "StarFlag bits: 1 saturated, 2 edge, 4 elongated, 8 blended, "
+                            "16 extended"),
     ), count_field="count", max_items=MAX_STARS_PER_PACKET, priority=2),
     MessageDef(MsgId.STATUS, _TM, "health and settings", (
         _f("uptime_s", "u32", "s", "time since the service started"),
