@@ -373,8 +373,10 @@ def _fmt(p: dict) -> str:
 def _markdown(r: dict) -> str:
     lines = ["# Soak: the service under injected faults", ""]
     lines += [f"- {k}: {v}" for k, v in r["machine"].items()]
-    lines += ["", f"{r['frames']} frames in {r['wall_s']:.1f} s ({r['fps']:.1f} fps); "
-              f"{r['solved']} solved, {r['tracking_frames']} in tracking mode; "
+    lines += ["", f"{r['frames_taken']} frames taken from the source, {r['processed']} "
+              f"through the pipeline, {r['solved']} solved; {r['frames']} latency samples "
+              f"in {r['wall_s']:.1f} s ({r['fps']:.1f} fps), {r['tracking_frames']} in "
+              "tracking mode; "
               f"crash: {r['crash'] or 'none'}", "",
               "## Latency (frame out of the source -> packets queued)", "",
               f"- all frames: {_fmt(r['latency_ms'])}",
