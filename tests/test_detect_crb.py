@@ -30,3 +30,14 @@ def test_photon_limited_bound_is_sigma_over_root_n():
 def test_no_light_gives_an_infinite_bound():
     bound = centroid_crb([3.0], [3.0], [0.0], 1.2, lambda sig: np.ones(sig.shape))
     assert bound[0] == np.inf
+
+
+def test_clipped_pixels_carry_no_information():
+    """Censoring the pixels a bright star saturates raises its bound; below, nothing changes."""
+    var = lambda sig: sig + 5.0  # noqa: E731 - shot noise plus a read/background floor
+    free = centroid_crb([10.2], [11.7], [2e5], 1.2, var)[0]
+    assert centroid_crb([10.2], [11.7], [2e5], 1.2, var, saturation=1e9)[0] == free
+    clipped = centroid_crb([10.2], [11.7], [2e5], 1.2, var, saturation=5000.0)[0]
+    # the core (~22,000 e- a pixel) is lost; under shot noise it held little of the
+    # position information (the steep wings hold most), so the bound grows by a third
+    assert 1.2 * free < clipped < 2 * free

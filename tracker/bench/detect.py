@@ -85,7 +85,8 @@ def _score_sets(sets, methods, cfg) -> dict:
     for data in sets:
         for frame in data.frames:
             truth = FrameTruth.from_frame(frame, data.criterion, data.variance,
-                                          data.flux_unit(frame), frame.truth["psf_sigma_px"])
+                                          data.flux_unit(frame), frame.truth["psf_sigma_px"],
+                                          data.saturation)
             for m in methods:
                 try:
                     x, y, ms, stages, rejected = _run_method(m, detectors, cfg, frame,

@@ -47,6 +47,7 @@ class DataSet:
     criterion: str                   # "peak_snr >= 5" or "mf_snr >= 7"
     variance: Callable[[SimFrame, int], Callable[[np.ndarray], np.ndarray]]
     flux_unit: Callable[[SimFrame], float]   # divide flux_e by this for the bound's unit
+    saturation: Callable[[SimFrame, int], float]  # star light that clips a pixel, bound's unit
 
 
 def _sensor_variance(sim) -> Callable:
@@ -62,6 +63,17 @@ def _sensor_variance(sim) -> Callable:
             bg += sim.glare_e * float(np.exp(-r2 / (2.0 * sim.glare_radius_px ** 2)))
         floor = bg + sim.read_noise_e ** 2 + noise["gain_e_per_adu"] ** 2 / 12.0
         return lambda s: s + floor
+    return for_star
+
+
+def _sensor_saturation(sim, bit_depth: int) -> Callable:
+    """Star light (e-) that takes a pixel to the ADC's full scale, over its background."""
+
+    def for_star(frame: SimFrame, i: int) -> float:
+        noise = frame.truth["noise"]
+        full = ((1 << bit_depth) - 1 - noise["bias_adu"]) * noise["gain_e_per_adu"]
+        bg = noise["sky_e"] + sim.dark_current_e_s * sim.exposure_ms / 1000.0
+        return min(full, sim.full_well_e) - bg
     return for_star
 
 
@@ -87,7 +99,8 @@ def build_sets(cfg: Config, catalogue, frames: int, quick: bool,
                                 noise_model=model, snr_db=snr) for _ in range(frames)]
             sets.append(DataSet(f"seed/{model}/{snr:+.0f} dB", f"seed/{model}", shots, 8,
                                 "mf_snr >= 7", _seed_variance(model),
-                                lambda f: f.truth["noise"]["full_scale_e"]))
+                                lambda f: f.truth["noise"]["full_scale_e"],
+                                lambda f, i: 1.0))
     for lens, exposure in REALISTIC:
         sim = dataclasses.replace(cfg.sim, glare_e=GLARE_E, cosmic_ray_rate_cm2_s=COSMIC_RATE,
                                   noise_model="realistic", exposure_ms=exposure)
@@ -96,5 +109,5 @@ def build_sets(cfg: Config, catalogue, frames: int, quick: bool,
                  for _ in range(frames)]
         sets.append(DataSet(f"realistic/{lens:.0f}mm/{exposure:.0f}ms", "realistic", shots,
                             camera.bit_depth, "peak_snr >= 5", _sensor_variance(sim),
-                            lambda f: 1.0))
+                            lambda f: 1.0, _sensor_saturation(sim, camera.bit_depth)))
     return sets

@@ -67,7 +67,7 @@ class FrameTruth:
 
     @classmethod
     def from_frame(cls, frame, criterion: str, variance, flux_unit: float,
-                   sigma_px: float) -> FrameTruth:
+                   sigma_px: float, saturation) -> FrameTruth:
         s = frame.stars
         rows, cols = frame.image.shape
         inside = ((s["x"] >= BORDER_PX) & (s["x"] <= cols - 1 - BORDER_PX)
@@ -81,7 +81,8 @@ class FrameTruth:
         crb = np.full(len(s), np.nan)
         for i in np.flatnonzero(detectable):
             crb[i] = centroid_crb([s["x"][i]], [s["y"][i]], [s["flux_e"][i] / flux_unit],
-                                  sigma_px, variance(frame, i))[0]
+                                  sigma_px, variance(frame, i),
+                                  saturation(frame, i) / flux_unit)[0]
         return cls(s["x"], s["y"], s["mag"], s["peak_snr"], detectable, crb)
 
 

@@ -16,6 +16,11 @@ summed numerically over a box of +-(4 sigma + 2) pixels around the star, and
 the bound on the Euclidean centroid error is sqrt([I^-1]_xx + [I^-1]_yy).
 For the seed method's impulse and multiplicative noise models this is the
 bound of the Gaussian noise with the same variance, not an exact bound.
+
+Saturation: a pixel whose expected star light reaches ``saturation`` is
+clipped by the sensor, so its value says only "at least full scale"; it is
+left out of the sum (censored), which is what makes the bound of a
+saturated star honest instead of that of an ideal, unclipped sensor.
 """
 
 from __future__ import annotations
@@ -43,12 +48,15 @@ def _axis(centre: np.ndarray, first: np.ndarray, size: int, sigma: float):
 
 
 def centroid_crb(x: np.ndarray, y: np.ndarray, flux: np.ndarray, sigma_px: float,
-                 variance: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+                 variance: Callable[[np.ndarray], np.ndarray],
+                 saturation: float | None = None) -> np.ndarray:
     """Lower bound on the RMS Euclidean centroid error of each star, px.
 
     ``x``, ``y``, ``flux``: (N,) arrays. ``variance(signal)`` maps the star's
     light per pixel, an (N, K, K) array, to the noise variance of those
-    pixels in the same unit squared. Stars with no information give inf.
+    pixels in the same unit squared. ``saturation`` (same unit as ``flux``;
+    None = never) is the star light at which a pixel clips. Stars with no
+    information give inf.
     """
     x = np.atleast_1d(np.asarray(x, np.float64))
     y = np.atleast_1d(np.asarray(y, np.float64))
@@ -62,6 +70,8 @@ def centroid_crb(x: np.ndarray, y: np.ndarray, flux: np.ndarray, sigma_px: float
     shape = wy[:, :, None] * wx[:, None, :]                  # (N, rows, cols)
     signal = flux[:, None, None] * shape
     var = np.asarray(variance(signal), np.float64)
+    if saturation is not None:
+        var = np.where(signal >= saturation, np.inf, var)   # censored: no information
     grads = np.stack([flux[:, None, None] * wy[:, :, None] * dwx[:, None, :],
                       flux[:, None, None] * dwy[:, :, None] * wx[:, None, :],
                       shape], axis=1)                        # (N, 3, rows, cols)
