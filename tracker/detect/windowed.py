@@ -115,6 +115,47 @@ class WindowedCentroider:
         self._photometry(n, v, noise)
         return v
 
+    def refine_clipped(self, n: int, saturation: float, sigma: float, noise: np.ndarray,
+                       iterations: int = 6) -> None:
+        """Re-centre saturated stars by fitting a Gaussian to their unclipped pixels.
+
+        A clipped core is flat, so the windowed centroid of a saturated star
+        is pulled by the pixel grid. For each of the first ``n`` stars whose
+        raw peak reached ``saturation`` (ADU), Gauss-Newton fits amplitude
+        and centre of a Gaussian of ``sigma`` px (the pixel-integrated PSF)
+        to the pixels below ``saturation``, weighted by 1 / (signal +
+        noise^2). Updates ``x0``/``y0`` in place; the few saturated stars of
+        a frame make this cheap, and it allocates only for them.
+        """
+        v = self.v
+        rows = np.flatnonzero(v["raw_peak"][:n] >= saturation)
+        if len(rows) == 0:
+            return
+        s = self.s[rows]
+        usable = self.win[rows] < saturation
+        weight = usable / (np.maximum(s, 0.0) + np.square(noise[rows, None]) + 1e-6)
+        x, y = v["x0"][rows].copy(), v["y0"][rows].copy()
+        inv_s2 = 1.0 / sigma ** 2
+        for _ in range(iterations):
+            ex = self.dx[None, :] - x[:, None]
+            ey = self.dy[None, :] - y[:, None]
+            g = np.exp(-0.5 * inv_s2 * (ex * ex + ey * ey))
+            amp = (weight * g * s).sum(axis=1) / np.maximum((weight * g * g).sum(axis=1),
+                                                            1e-30)
+            resid = s - amp[:, None] * g
+            jac = np.stack([amp[:, None] * g * ex * inv_s2, amp[:, None] * g * ey * inv_s2, g],
+                           axis=1)
+            hess = np.einsum("mpk,mqk->mpq", jac * weight[:, None, :], jac)
+            grad = np.einsum("mpk,mk->mp", jac * weight[:, None, :], resid)
+            good = np.linalg.det(hess) > 0
+            if not np.any(good):
+                return
+            step = np.zeros_like(grad)
+            step[good] = np.linalg.solve(hess[good], grad[good][..., None])[..., 0]
+            x = np.clip(x + step[:, 0], -self.max_shift, self.max_shift)
+            y = np.clip(y + step[:, 1], -self.max_shift, self.max_shift)
+        v["x0"][rows], v["y0"][rows] = x, y
+
     def _weights(self, n: int, x0: np.ndarray, y0: np.ndarray) -> None:
         """w = exp(-((dx - x0)^2 + (dy - y0)^2) / (2 w^2)); ws = w * s."""
         ex, ey, w, t = self.ex[:n], self.ey[:n], self.w[:n], self.t[:n]
