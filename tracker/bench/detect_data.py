@@ -88,7 +88,7 @@ def _seed_variance(model: str) -> Callable:
     return for_star
 
 
-def build_sets(cfg: Config, catalogue, frames: int, quick: bool,
+def build_sets(cfg: Config, catalogue, frames: int, realistic_frames: int, quick: bool,
                rng: np.random.Generator) -> list[DataSet]:
     """All data sets: seed models x SNR levels, then the realistic lenses."""
     sets = []
@@ -100,13 +100,13 @@ def build_sets(cfg: Config, catalogue, frames: int, quick: bool,
             sets.append(DataSet(f"seed/{model}/{snr:+.0f} dB", f"seed/{model}", shots, 8,
                                 "mf_snr >= 7", _seed_variance(model),
                                 lambda f: f.truth["noise"]["full_scale_e"],
-                                lambda f, i: 1.0))
+                                lambda f, i: f.truth["noise"]["full_scale_e"]))
     for lens, exposure in REALISTIC:
         sim = dataclasses.replace(cfg.sim, glare_e=GLARE_E, cosmic_ray_rate_cm2_s=COSMIC_RATE,
                                   noise_model="realistic", exposure_ms=exposure)
         camera = dataclasses.replace(cfg.camera, focal_length_mm=lens)
         shots = [render_sky(camera, catalogue, random_attitude(rng), sim, rng)
-                 for _ in range(frames)]
+                 for _ in range(realistic_frames)]
         sets.append(DataSet(f"realistic/{lens:.0f}mm/{exposure:.0f}ms", "realistic", shots,
                             camera.bit_depth, "peak_snr >= 5", _sensor_variance(sim),
                             lambda f: 1.0, _sensor_saturation(sim, camera.bit_depth)))
