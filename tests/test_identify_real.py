@@ -58,6 +58,16 @@ KNOWN_PIPELINE_MISSES = {
 }
 
 
+def assert_within_truth_tolerances(sol, truth: dict) -> None:
+    """Boresight within 60 arcsec of the truth's centre, roll within 0.1 deg (MANIFEST)."""
+    a = radec_to_vector(math.radians(sol.ra_deg), math.radians(sol.dec_deg))
+    b = radec_to_vector(math.radians(truth["ra_deg"]), math.radians(truth["dec_deg"]))
+    centre_arcsec = math.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), a @ b)) * 3600
+    roll_deg = (sol.roll_deg - truth["roll_deg"] + 180.0) % 360.0 - 180.0
+    assert centre_arcsec < 60.0
+    assert abs(roll_deg) < 0.1
+
+
 @pytest.fixture(scope="session")
 def narrow_database(tmp_path_factory):
     """A database for the openstartracker lens (7.6 deg diagonal; no OV2311 one fits).
@@ -91,12 +101,7 @@ def test_real_frame_matches_truth(frame, narrow_database):
     truth = json.loads((REAL / f"{frame}.truth.json").read_text())
     sol = solver.solve(stars, 0)
     assert sol.ok, sol.reason
-    a = radec_to_vector(math.radians(sol.ra_deg), math.radians(sol.dec_deg))
-    b = radec_to_vector(math.radians(truth["ra_deg"]), math.radians(truth["dec_deg"]))
-    centre_arcsec = math.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), a @ b)) * 3600
-    roll_deg = (sol.roll_deg - truth["roll_deg"] + 180.0) % 360.0 - 180.0
-    assert centre_arcsec < 60.0
-    assert abs(roll_deg) < 0.1
+    assert_within_truth_tolerances(sol, truth)
     assert sol.matched >= 7
 
 
@@ -129,11 +134,6 @@ def test_real_image_through_detector_and_solver(frame, narrow_database):
     assert sol is not None and sol.ok, (result.solve_reason or sol.reason,
                                         result.detections.count)
     truth = json.loads((REAL / f"{frame}.truth.json").read_text())
-    a = radec_to_vector(math.radians(sol.ra_deg), math.radians(sol.dec_deg))
-    b = radec_to_vector(math.radians(truth["ra_deg"]), math.radians(truth["dec_deg"]))
-    centre_arcsec = math.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), a @ b)) * 3600
-    roll_deg = (sol.roll_deg - truth["roll_deg"] + 180.0) % 360.0 - 180.0
-    assert centre_arcsec < 60.0
-    assert abs(roll_deg) < 0.1
+    assert_within_truth_tolerances(sol, truth)
     # the solver accepts only matches whose false-match probability is < 1e-6
     assert sol.matched >= cfg.identify.min_matched
