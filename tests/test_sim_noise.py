@@ -156,3 +156,12 @@ def test_snr_measure_and_out_of_reach_target():
     assert snr_db(clean, noisy) == pytest.approx(0.0)
     with pytest.raises(ValueError, match="out of reach for salt_pepper"):
         param_for_snr("salt_pepper", clean, -30.0)
+
+
+def test_speckled_star_that_rounds_away_is_not_counted_detectable():
+    """Multiplicative noise is tiny on tiny light, but 8-bit rounding is not: the per-star
+    SNR has the LSB^2/12 floor, so a star below half an LSB is not 'detectable'."""
+    frame = render_points((40, 40), [20.0], [20.0], [20.0], SimConfig(),
+                          np.random.default_rng(3), noise_model="speckle", bit_depth=8)
+    assert frame.image[15:26, 15:26].max() <= 1          # the star is (almost) gone
+    assert frame.stars["mf_snr"][0] < 3.0

@@ -23,7 +23,7 @@ import numpy as np
 
 from tracker.config import Config
 from tracker.sim import SimFrame, random_attitude, render_sky
-from tracker.sim.seednoise import SEED_MODELS, noise_power
+from tracker.sim.seednoise import QUANT_POWER, SEED_MODELS, noise_power
 
 __all__ = ["DataSet", "build_sets", "SNR_LEVELS_DB", "QUICK_SNR_LEVELS_DB"]
 
@@ -78,13 +78,21 @@ def _sensor_saturation(sim, bit_depth: int) -> Callable:
 
 
 def _seed_variance(model: str) -> Callable:
-    """The seed model's expected noise power for the star's own light (0..1 scale)."""
+    """The seed model's expected noise power for the star's own light (0..1 scale).
+
+    Floored at the 8-bit rounding noise LSB^2/12, as the simulator's per-star
+    SNR is: a deterministic rounding error is not a variance, and without
+    the floor a pixel that happens to sit on the 8-bit grid would carry
+    infinite information.
+    """
 
     def for_star(frame: SimFrame, i: int):
         param = frame.truth["noise"]["param"]
-        if model == "glare":  # the glare is smooth and known to a background estimate
-            return lambda s: noise_power("salt_pepper", 0.0, s)
-        return lambda s: noise_power(model, param, np.clip(s, 0.0, 1.0))
+        if model == "glare":  # the glare is smooth and known to a background estimate;
+            # what is left is 8-bit rounding, modelled as uniform noise
+            return lambda s: np.full(np.shape(s), QUANT_POWER)
+        return lambda s: np.maximum(noise_power(model, param, np.clip(s, 0.0, 1.0)),
+                                    QUANT_POWER)
     return for_star
 
 

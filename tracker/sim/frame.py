@@ -18,7 +18,9 @@ Per-star expected SNR, for a star's own light s_i in pixel i:
 ``peak_snr`` = s_peak / noise at that pixel, ``mf_snr`` = sqrt(sum_i
 s_i^2 / noise_i^2) (the matched-filter SNR), where the noise power is
 s + background + read^2 + gain^2/12 in e- for the sensor models and
-:func:`tracker.sim.seednoise.noise_power` for the seed models.
+:func:`tracker.sim.seednoise.noise_power` for the seed models, floored at
+the 8-bit rounding noise LSB^2/12: light that rounds away is not
+detectable, whatever the multiplicative (speckle) noise on it.
 """
 
 from __future__ import annotations
@@ -169,7 +171,10 @@ def render_points(shape: tuple[int, int], xs, ys, electrons, sim_cfg: SimConfig,
         image, info, power_of, false_sources = _sensor_frame(
             signal, model, sim_cfg, rng, depth, sky_e, pixel_size_um)
     values, inside = _gather(power_of, stamps)
-    power = values + (own if model == "realistic" else 0.0)
+    if model in seednoise.SEED_MODELS:
+        power = np.maximum(values, seednoise.QUANT_POWER)
+    else:
+        power = values + (own if model == "realistic" else 0.0)
     stars["peak_snr"], stars["mf_snr"], peak = _star_snrs(own, power, inside)
     stars["saturated"] = peak >= info.pop("full_scale")
     truth = {

@@ -37,7 +37,7 @@ SNR_DEFINITION = ("10*log10(sum(S^2)/sum((I-S)^2)) over the frame; S = noise-fre
 # 8-bit output: photon count per unit intensity of the Poisson stage, and the
 # rounding noise power every 8-bit pixel carries.
 _LEVELS = 255.0
-_QUANT_POWER = 1.0 / (12.0 * _LEVELS ** 2)
+QUANT_POWER = 1.0 / (12.0 * _LEVELS ** 2)   # 8-bit rounding as uniform noise, (0..1)^2
 
 
 def _check_model(model: str) -> None:
@@ -71,7 +71,7 @@ def noise_power(model: str, param: float, clean: np.ndarray,
     second, mean = _clipped_moments(s, spread)
     if model == "gaussian_poisson":
         return second + mean / _LEVELS
-    return second + np.minimum(_QUANT_POWER, s * s)
+    return second + np.minimum(QUANT_POWER, s * s)
 
 
 def _clipped_moments(s: np.ndarray, spread: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
