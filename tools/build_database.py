@@ -4,7 +4,7 @@ Usage::
 
     .venv/bin/python tools/build_database.py            # the four OV2311 lenses
     .venv/bin/python tools/build_database.py --focal-mm 35 --width 1024 \
-        --height 768 --pixel-um 6.9 --out /tmp/patterns_x.npz
+        --height 768 --pixel-um 6.9 --out build/patterns_x.npz
 
 For each lens the design field of view is the camera's diagonal; the
 database serves diagonals within +-``--fov-margin`` of it. Stars down to

@@ -1,6 +1,6 @@
 """Extract the centroid lists of the real frames in ../shared/data/real/ (run once).
 
-Usage: .venv/bin/python tests/data/real/make_centroids.py /work/shared/data/real
+Usage: .venv/bin/python tests/data/real/make_centroids.py ../shared/data/real
 
 Writes ``<source>/<image>.centroids.json`` beside this script: the 60
 brightest sources found by SEP (Barbary 2016, the Source Extractor
