@@ -194,6 +194,10 @@ class DetectConfig:
                                        "a pair (deblend test, BLENDED flag); null = twice "
                                        "the centroid window's radius (windows overlap)",
                                        "px", min=1, max=64)
+    centroid_noise: str = knob("additive", "default: noise the centroid is made for: additive "
+                               "(shot, read, background: windowed centroid) or multiplicative "
+                               "(speckle-like, noise proportional to the light: log-domain "
+                               "Gaussian fit)", "name", choices=("additive", "multiplicative"))
     centroid_iterations: int = knob(8, "default: most iterations of the windowed centroid",
                                     "iterations", min=1, max=100)
     centroid_tolerance_px: float = knob(0.001, "default: stop iterating when no centroid "

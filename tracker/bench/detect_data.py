@@ -48,6 +48,8 @@ class DataSet:
     variance: Callable[[SimFrame, int], Callable[[np.ndarray], np.ndarray]]
     flux_unit: Callable[[SimFrame], float]   # divide flux_e by this for the bound's unit
     saturation: Callable[[SimFrame, int], float]  # star light that clips a pixel, bound's unit
+    # detect.* settings a user would choose for this kind of frame (our methods only)
+    detect_settings: dict = dataclasses.field(default_factory=dict)
 
 
 def _sensor_variance(sim) -> Callable:
@@ -96,6 +98,10 @@ def _seed_variance(model: str) -> Callable:
     return for_star
 
 
+# Speckle multiplies the light by noise: the user of such a camera says so.
+MODEL_SETTINGS = {"speckle": {"centroid_noise": "multiplicative"}}
+
+
 def build_sets(cfg: Config, catalogue, frames: int, realistic_frames: int, quick: bool,
                rng: np.random.Generator) -> list[DataSet]:
     """All data sets: seed models x SNR levels, then the realistic lenses."""
@@ -108,7 +114,8 @@ def build_sets(cfg: Config, catalogue, frames: int, realistic_frames: int, quick
             sets.append(DataSet(f"seed/{model}/{snr:+.0f} dB", f"seed/{model}", shots, 8,
                                 "mf_snr >= 7", _seed_variance(model),
                                 lambda f: f.truth["noise"]["full_scale_e"],
-                                lambda f, i: f.truth["noise"]["full_scale_e"]))
+                                lambda f, i: f.truth["noise"]["full_scale_e"],
+                                MODEL_SETTINGS.get(model, {})))
     for lens, exposure in REALISTIC:
         sim = dataclasses.replace(cfg.sim, glare_e=GLARE_E, cosmic_ray_rate_cm2_s=COSMIC_RATE,
                                   noise_model="realistic", exposure_ms=exposure)

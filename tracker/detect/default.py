@@ -246,6 +246,8 @@ class DefaultDetector:
         self.grid.at(self.noise, cand, noise)
         self.grid.at(self.residual, cand, level)
         v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level)
+        if self.cfg.centroid_noise == "multiplicative":
+            self.centroider.refine_multiplicative(n)
         self.centroider.refine_clipped(n, self.saturation, self.sigma, noise)
         sharp = (v["snr"] >= self.cfg.sharp_min_snr) & (
             v["size"] < self.cfg.sharp_size_ratio * self.expected_size)
