@@ -8,12 +8,13 @@ import cv2
 import numpy as np
 import pytest
 
+from tracker.bench.detect_data import bound_variance
 from tracker.config import DetectConfig, SimConfig
 from tracker.detect import StarFlag, make_detector
 from tracker.detect.crb import centroid_crb
 from tracker.detect.default import effective_sigma
 from tracker.sim import render_points
-from tracker.sim.seednoise import QUANT_POWER
+from tracker.sim.sensor import cosmic_rays
 
 CFG = DetectConfig(method="default")
 # A clean sensor: no hot pixels or cosmic rays unless a test adds them.
@@ -128,6 +129,29 @@ def test_hot_pixel_and_cosmic_ray_are_counted_not_reported():
     assert result.counters["hot_pixels"] == 2
     assert result.counters["cosmic_rays"] == 1
     assert result.counters["impulse_pixels"] == 7
+
+
+def test_cosmic_ray_tracks_are_rejected_and_a_trailed_star_is_kept():
+    """150 cosmic rays (tracks up to 6 px, a pixel wide): counted, never reported.
+
+    A track's second moment across it is a pixel's (~0.1 px^2), the PSF's
+    is 0.76 px^2 and an 8 px star trail keeps it; the test is across the
+    narrowest axis, so a track's length does not hide its width (a test of
+    the total size lets 5 of these tracks through as stars).
+    """
+    rng = np.random.default_rng(0)
+    shape = (300, 300)
+    path_x = np.linspace(146.0, 154.0, 17)[None, :]
+    frame = render_points(shape, path_x, np.full_like(path_x, 150.0), [20000.0], CLEAN, rng,
+                          noise_model="realistic")
+    hits, _ = cosmic_rays(shape, 150, SimConfig().cosmic_ray_e, rng)
+    adu = frame.image + hits / frame.truth["noise"]["gain_e_per_adu"]
+    image = np.clip(np.rint(adu), 0, 1023).astype(np.uint16)
+    result = make_detector(CFG, shape, 10).detect(image)
+    assert result.count == 1, result.stars[["x", "y", "snr", "flags"]]
+    assert abs(result.stars["x"][0] - 150.0) < 0.5 and abs(result.stars["y"][0] - 150.0) < 0.5
+    assert result.stars["flags"][0] & StarFlag.ELONGATED
+    assert result.counters["cosmic_rays"] >= 150 * 0.9, result.counters
 
 
 def test_close_pair_is_split_and_flagged_blended():
@@ -302,10 +326,10 @@ def test_saturated_stars_are_centred_from_their_unclipped_wings():
 
 
 def test_multiplicative_noise_centroid_nears_the_bound_on_speckle():
-    """Speckle (variance 0.15 of the light, 8-bit): the log-domain fit is the ML centre.
+    """Speckle (variance 0.15 of the light, 8-bit): the likelihood fit nears the exact bound.
 
-    Bound: Gaussian noise of variance 0.15 s^2 plus the 8-bit rounding LSB^2/12.
-    Measured for this seed: 0.097 px fitted, 0.295 px windowed, bound 0.069 px.
+    Bound: the exact Fisher information of the speckled, rounded pixel.
+    Measured for this seed: 0.057 px fitted, 0.295 px windowed, bound 0.060 px.
     """
     rng = np.random.default_rng(41)
     shape = (300, 300)
@@ -315,7 +339,7 @@ def test_multiplicative_noise_centroid_nears_the_bound_on_speckle():
                           noise_model="speckle", bit_depth=8)
     full_scale = frame.truth["noise"]["full_scale_e"]
     bound = centroid_crb(xs, ys, electrons / full_scale, SimConfig().psf_sigma_px,
-                         lambda s: 0.15 * s * s + QUANT_POWER, 1.0)
+                         bound_variance("speckle", 0.15), 1.0)
     rms = {}
     for noise in ("additive", "multiplicative"):
         cfg = dataclasses.replace(CFG, centroid_noise=noise)
@@ -323,5 +347,6 @@ def test_multiplicative_noise_centroid_nears_the_bound_on_speckle():
         idx, dist = _match(xs, ys, det.stars)
         assert (idx >= 0).all()
         rms[noise] = float(np.sqrt(np.mean(dist ** 2)))
-    assert rms["multiplicative"] < 1.7 * float(np.sqrt(np.mean(bound ** 2)))
-    assert rms["multiplicative"] < 0.5 * rms["additive"]
+    limit = float(np.sqrt(np.mean(bound ** 2)))
+    assert rms["multiplicative"] < 1.3 * limit, (rms, limit)
+    assert rms["multiplicative"] < 0.5 * rms["additive"], (rms, limit)

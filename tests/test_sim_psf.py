@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from tracker.config import SimConfig
+from tracker.normal import erf
 from tracker.sim import render_points
 from tracker.sim.photometry import aperture_area_m2, star_electrons
-from tracker.sim.psf import erf, psf_stamps
+from tracker.sim.psf import psf_stamps
 
 NOISELESS = SimConfig(noise_model="none")
 

@@ -196,15 +196,18 @@ class DetectConfig:
                                        "px", min=1, max=64)
     centroid_noise: str = knob("additive", "default: noise the centroid is made for: additive "
                                "(shot, read, background: windowed centroid) or multiplicative "
-                               "(speckle-like, noise proportional to the light: log-domain "
-                               "Gaussian fit)", "name", choices=("additive", "multiplicative"))
+                               "(speckle-like, noise proportional to the light: maximum-"
+                               "likelihood fit, about 50 ms more per frame)", "name",
+                               choices=("additive", "multiplicative"))
     centroid_iterations: int = knob(8, "default: most iterations of the windowed centroid",
                                     "iterations", min=1, max=100)
     centroid_tolerance_px: float = knob(0.001, "default: stop iterating when no centroid "
                                         "moves more than this", "px", min=0.0, max=1.0)
-    sharp_size_ratio: float = knob(0.5, "default: reject a spot whose windowed second "
-                                   "moment is below this fraction of the PSF's (a "
-                                   "cosmic-ray cluster)", "fraction", min=0.0, max=1.0)
+    sharp_size_ratio: float = knob(0.4, "default: reject a spot whose windowed second "
+                                   "moment across its narrowest axis is below this "
+                                   "fraction of the PSF's (a cosmic-ray hit or track; a "
+                                   "streaked star keeps the PSF's width)", "fraction",
+                                   min=0.0, max=1.0)
     sharp_min_snr: float = knob(10.0, "default: apply the sharpness and elongation tests "
                                 "only above this SNR", "sigma", min=0.0, max=1e6)
     elongation_max: float = knob(0.3, "default: flag ELONGATED above this ellipticity of "

@@ -22,10 +22,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from tracker.config import Config
+from tracker.detect.multiplicative import interval_scores
 from tracker.sim import SimFrame, random_attitude, render_sky
 from tracker.sim.seednoise import QUANT_POWER, SEED_MODELS, noise_power
 
-__all__ = ["DataSet", "build_sets", "SNR_LEVELS_DB", "QUICK_SNR_LEVELS_DB"]
+__all__ = ["DataSet", "bound_variance", "build_sets", "speckle_information", "SNR_LEVELS_DB",
+           "QUICK_SNR_LEVELS_DB"]
+
+_LEVELS_8BIT = 255.0
 
 SNR_LEVELS_DB = (-5.0, -3.0, -1.0, 1.0, 3.0)
 QUICK_SNR_LEVELS_DB = (-5.0, -1.0, 3.0)
@@ -79,23 +83,52 @@ def _sensor_saturation(sim, bit_depth: int) -> Callable:
     return for_star
 
 
-def _seed_variance(model: str) -> Callable:
-    """The seed model's expected noise power for the star's own light (0..1 scale).
+def speckle_information(param: float, clean: np.ndarray) -> np.ndarray:
+    """Fisher information of a speckled 8-bit pixel about its clean value (0..1 scale).
 
-    Floored at the 8-bit rounding noise LSB^2/12, as the simulator's per-star
-    SNR is: a deterministic rounding error is not a variance, and without
-    the floor a pixel that happens to sit on the 8-bit grid would carry
-    infinite information.
+    Exact for the seed's speckle as the simulator delivers it: the value is
+    round(255 clip(s (1 + sqrt(param) Z), 0, 1)), so over the 256 possible
+    values I(s) = sum_k P_k (d log P_k / ds)^2, with P_k from
+    tracker.detect.multiplicative.interval_scores (rounding and both clips
+    included). A clean value at full scale, clipped before the noise,
+    carries none.
     """
+    s = np.asarray(clean, np.float64)
+    mu = np.clip(s * _LEVELS_8BIT, 1e-9, None)[..., None]
+    k = np.arange(_LEVELS_8BIT + 1.0)
+    lo = np.where(k <= 0, -np.inf, k - 0.5)
+    hi = np.where(k >= _LEVELS_8BIT, np.inf, k + 0.5)
+    log_p, by_mu, _ = interval_scores(lo, hi, mu, np.sqrt(param))
+    with np.errstate(invalid="ignore", over="ignore"):
+        terms = np.where(log_p > -700.0, np.exp(log_p) * by_mu ** 2, 0.0)  # P = 0: none
+    info = np.sum(terms, axis=-1) * _LEVELS_8BIT ** 2
+    return np.where(s < 1.0, info, 0.0)
 
-    def for_star(frame: SimFrame, i: int):
-        param = frame.truth["noise"]["param"]
-        if model == "glare":  # the glare is smooth and known to a background estimate;
-            # what is left is 8-bit rounding, modelled as uniform noise
-            return lambda s: np.full(np.shape(s), QUANT_POWER)
-        return lambda s: np.maximum(noise_power(model, param, np.clip(s, 0.0, 1.0)),
-                                    QUANT_POWER)
-    return for_star
+
+def bound_variance(model: str, param: float) -> Callable[[np.ndarray], np.ndarray]:
+    """A seed model's pixel noise as the bound (tracker.detect.crb) takes it, 0..1 scale.
+
+    Maps the star's light per pixel to: for speckle, the reciprocal of the
+    exact Fisher information (speckle_information), so its bound is the
+    true Cramer-Rao bound of the speckled, rounded, clipped pixel; for the
+    others, the expected noise power floored at the 8-bit rounding noise
+    LSB^2/12, as the simulator's per-star SNR is (a deterministic rounding
+    error is not a variance, and without the floor a pixel that happens to
+    sit on the 8-bit grid would carry infinite information). For those
+    models that is the bound of Gaussian noise of the same power, not an
+    exact bound. ``param``: the model's parameter (tracker.sim.seednoise).
+    """
+    if model == "speckle":
+        return lambda s: 1.0 / np.maximum(speckle_information(param, s), 1e-300)
+    if model == "glare":  # the glare is smooth and known to a background estimate;
+        # what is left is 8-bit rounding, modelled as uniform noise
+        return lambda s: np.full(np.shape(s), QUANT_POWER)
+    return lambda s: np.maximum(noise_power(model, param, np.clip(s, 0.0, 1.0)), QUANT_POWER)
+
+
+def _seed_variance(model: str) -> Callable:
+    """bound_variance of each frame's own parameter."""
+    return lambda frame, i: bound_variance(model, frame.truth["noise"]["param"])
 
 
 # Speckle multiplies the light by noise: the user of such a camera says so.

@@ -14,8 +14,11 @@ so the Fisher information is
 
 summed numerically over a box of +-(4 sigma + 2) pixels around the star, and
 the bound on the Euclidean centroid error is sqrt([I^-1]_xx + [I^-1]_yy).
-For the seed method's impulse and multiplicative noise models this is the
-bound of the Gaussian noise with the same variance, not an exact bound.
+For noise that is not Gaussian, pass as ``variance`` the reciprocal of the
+pixel's Fisher information about its mean: the sum is then exact (the
+benchmark does so for the seed's speckle); passing the noise power
+instead gives the bound of Gaussian noise of that power, which a
+non-Gaussian model's estimator can beat.
 
 Saturation: a pixel whose expected star light reaches ``saturation`` is
 clipped by the sensor, so its value says only "at least full scale"; it is
@@ -30,21 +33,15 @@ from collections.abc import Callable
 
 import numpy as np
 
+from tracker.normal import pixel_fractions
+
 __all__ = ["centroid_crb"]
-
-_SQRT2 = math.sqrt(2.0)
-
-
-def _erf(x: np.ndarray) -> np.ndarray:
-    return np.vectorize(math.erf, otypes=[np.float64])(x)
 
 
 def _axis(centre: np.ndarray, first: np.ndarray, size: int, sigma: float):
     """Pixel fractions (N, size) and their derivatives with respect to the centre."""
     edges = first[:, None] + np.arange(size + 1)[None, :] - 0.5 - centre[:, None]
-    cdf = 0.5 * _erf(edges / (sigma * _SQRT2))
-    pdf = np.exp(-0.5 * (edges / sigma) ** 2) / (sigma * math.sqrt(2.0 * math.pi))
-    return np.diff(cdf, axis=1), -np.diff(pdf, axis=1)
+    return pixel_fractions(edges, sigma)
 
 
 def centroid_crb(x: np.ndarray, y: np.ndarray, flux: np.ndarray, sigma_px: float,

@@ -28,7 +28,11 @@ Per frame, with every buffer made at construction for one frame shape and
    profile dips between them (tracker.detect.peaks).
 6. ``centroid``: iterative Gaussian-windowed centroid, flux, SNR and shape
    (tracker.detect.windowed). Spots much narrower than the PSF (cosmic-ray
-   clusters that survived step 3) are rejected and counted.
+   clusters that survived step 3) are rejected and counted. Saturated
+   stars are re-centred on their unclipped wings. With
+   ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
+   noise proportional to the light (tracker.detect.multiplicative) gives
+   every centre instead, from the frame as delivered.
 
 The median of step 3, the float copy and Gaussian of step 4 and the
 threshold test of step 5 run in ``detect.threads`` horizontal slabs at once
@@ -51,6 +55,7 @@ from tracker.detect.background import QUANTISATION_NOISE_ADU, BackgroundGrid
 from tracker.detect.frame_input import FrameInput, Reason
 from tracker.detect.impulse import ImpulseFilter, psf_contrast
 from tracker.detect.layout import PaddedLayout
+from tracker.detect.multiplicative import MultiplicativeFit
 from tracker.detect.peaks import PeakFinder
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.slabs import SlabRunner
@@ -143,6 +148,13 @@ class DefaultDetector:
             layout.stride, self.radius, sigma, gain=2.0, iterations=cfg.centroid_iterations,
             tolerance=cfg.centroid_tolerance_px, max_shift=1.5, capacity=cfg.max_candidates,
             dtype=np.uint16)
+        # multiplicative noise: the likelihood fit reads the frame as delivered, since
+        # the impulse filter takes the spikes of speckle for hot pixels
+        self.speckle_fit = None
+        if cfg.centroid_noise == "multiplicative":
+            self.speckle_fit = MultiplicativeFit(self.radius, cfg.psf_sigma_px,
+                                                 self.input.full_scale)
+            self.delivered_pad = np.zeros_like(self.input.padded)
         self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
         self.cand_noise = np.zeros(cfg.max_candidates, np.float32)
         self.cand_level = np.zeros(cfg.max_candidates, np.float32)
@@ -163,6 +175,8 @@ class DefaultDetector:
         if reason is not None:
             timer.stop()
             return self.table.result(0, reason, self.counters, timer.ms)
+        if self.speckle_fit is not None:
+            np.copyto(self.delivered_pad, self.input.padded)
         timer.start("background")
         grid = self.grid
         grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
@@ -246,11 +260,18 @@ class DefaultDetector:
         self.grid.at(self.noise, cand, noise)
         self.grid.at(self.residual, cand, level)
         v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level)
-        if self.cfg.centroid_noise == "multiplicative":
-            self.centroider.refine_multiplicative(n)
-        self.centroider.refine_clipped(n, self.saturation, self.sigma, noise)
+        if self.speckle_fit is not None:  # its likelihood handles saturated stars too
+            self.centroider.refine_multiplicative(n, self.speckle_fit, self.delivered_pad)
+        else:
+            self.centroider.refine_clipped(n, self.saturation, self.sigma, noise)
+        # Second moment across the spot's narrowest axis: a PSF's is half its size,
+        # and a star streaked by motion keeps it, while a cosmic-ray hit or track
+        # is a pixel or so wide. Moments of no positive spot (what impulse
+        # rejection leaves of a track) count as narrow.
+        narrowest = 0.5 * v["size"] * (1.0 - v["ellipticity"])
+        spot = (v["weighted"] > 0) & (v["size"] > 0) & (v["ellipticity"] <= 1.0)
         sharp = (v["snr"] >= self.cfg.sharp_min_snr) & (
-            v["size"] < self.cfg.sharp_size_ratio * self.expected_size)
+            ~spot | (narrowest < self.cfg.sharp_size_ratio * 0.5 * self.expected_size))
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp

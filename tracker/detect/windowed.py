@@ -38,6 +38,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tracker.detect.multiplicative import MultiplicativeFit
+
 __all__ = ["WindowedCentroider"]
 
 
@@ -156,43 +158,26 @@ class WindowedCentroider:
             y = np.clip(y + step[:, 1], -self.max_shift, self.max_shift)
         v["x0"][rows], v["y0"][rows] = x, y
 
-    def refine_multiplicative(self, n: int) -> None:
-        """Re-centre the first ``n`` stars by a log-domain Gaussian fit (speckle-like noise).
+    def refine_multiplicative(self, n: int, fit: MultiplicativeFit,
+                              delivered_pad: np.ndarray) -> None:
+        """Re-centre the first ``n`` stars by ``fit``'s likelihood for speckle-like noise.
 
-        Under noise proportional to the light, I = S (1 + e), ln I = ln S +
-        ln(1 + e) has noise of constant variance, and ln S of a Gaussian spot
-        is a paraboloid a + b dx + c dy + d (dx^2 + dy^2). An unweighted
-        linear least-squares fit over the window's pixels above the
-        background gives the
-        centre (-b / 2d, -c / 2d): the maximum-likelihood estimate for that
-        noise, where the windowed centroid (made for additive noise) lets
-        the noisiest, brightest pixels pull it; the faint wings, where ln S
-        is steepest, carry most of the information. Stars with fewer than
-        five such pixels, or a fit that is not a peak, keep their windowed
-        centre. Updates ``x0``/``y0`` in place.
+        The windowed centroid is made for additive noise; under noise
+        proportional to the light (tracker.detect.multiplicative) the
+        brightest, noisiest pixels pull it. The fit reads the same windows
+        of ``delivered_pad``, the frame before impulse rejection, padded
+        like the measured image. A fit that fails or lands more than
+        ``max_shift`` px from the candidate pixel keeps the windowed centre.
+        Updates ``x0``/``y0`` in place.
         """
         if n == 0:
             return
-        s = self.s[:n]
-        usable = s > 0
-        log_s = np.log(np.where(usable, s, 1.0))
-        basis = np.stack([np.ones_like(self.dx), self.dx, self.dy,
-                          self.dx * self.dx + self.dy * self.dy], axis=1)      # (k, 4)
-        normal = np.einsum("mk,ki,kj->mij", usable.astype(np.float64), basis, basis)
-        rhs = np.einsum("mk,ki->mi", usable * log_s, basis)
-        fit = (usable.sum(axis=1) >= 5) & (np.linalg.det(normal) > 1e-9)
-        if not np.any(fit):
-            return
-        coef = np.zeros((n, 4))
-        coef[fit] = np.linalg.solve(normal[fit], rhs[fit][..., None])[..., 0]
-        curv = coef[:, 3]
-        fit &= curv < 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x = -coef[:, 1] / (2.0 * curv)
-            y = -coef[:, 2] / (2.0 * curv)
-        fit &= (np.abs(x) <= self.max_shift) & (np.abs(y) <= self.max_shift)
-        self.v["x0"][:n][fit] = x[fit]
-        self.v["y0"][:n][fit] = y[fit]
+        background = self.win[:n] - self.s[:n]
+        delivered = np.take(delivered_pad.ravel(), self.index[:n], mode="clip")
+        x, y, ok = fit.fit(delivered, background, (delivered - background).sum(axis=1))
+        ok &= (np.abs(x) <= self.max_shift) & (np.abs(y) <= self.max_shift)
+        self.v["x0"][:n][ok] = x[ok]
+        self.v["y0"][:n][ok] = y[ok]
 
     def _weights(self, n: int, x0: np.ndarray, y0: np.ndarray) -> None:
         """w = exp(-((dx - x0)^2 + (dy - y0)^2) / (2 w^2)); ws = w * s."""

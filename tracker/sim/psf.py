@@ -18,22 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["erf", "Stamps", "psf_stamps", "add_stamps", "stamp_half_width", "stamp_pixels"]
+from tracker.normal import pixel_fractions
+
+__all__ = ["Stamps", "psf_stamps", "add_stamps", "stamp_half_width", "stamp_pixels"]
 
 # Gaussian tails beyond this many sigma hold < 6e-7 of the light per axis.
 _TAIL_SIGMAS = 5.0
-
-
-def erf(x: np.ndarray) -> np.ndarray:
-    """Error function, vectorised; relative error < 1.2e-7 (Numerical Recipes ``erfcc``)."""
-    x = np.asarray(x, dtype=np.float64)
-    z = np.abs(x)
-    t = 1.0 / (1.0 + 0.5 * z)
-    poly = -1.26551223 + t * (1.00002368 + t * (0.37409196 + t * (0.09678418 + t * (
-        -0.18628806 + t * (0.27886807 + t * (-1.13520398 + t * (1.48851587 + t * (
-            -0.82215223 + t * 0.17087277))))))))
-    erfc = t * np.exp(-z * z + poly)
-    return np.where(x >= 0, 1.0 - erfc, erfc - 1.0)
 
 
 def stamp_half_width(sigma: float) -> int:
@@ -59,8 +49,7 @@ def _axis_weights(centres: np.ndarray, first: np.ndarray, size: int,
                   sigma: float) -> np.ndarray:
     """Fractions (N, M, size) along one axis for centres (N, M), boxes starting at first (N,)."""
     edges = first[:, None, None] + np.arange(size + 1) - 0.5  # (N, 1, size+1)
-    cdf = 0.5 * erf((edges - centres[:, :, None]) / (sigma * np.sqrt(2.0)))
-    return np.diff(cdf, axis=-1)
+    return pixel_fractions(edges - centres[:, :, None], sigma)[0]
 
 
 def psf_stamps(xs: np.ndarray, ys: np.ndarray, sigma: float) -> Stamps:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker.sim.psf import erf
+from tracker.normal import erf
 from tracker.sim.sensor import glare_field
 
 __all__ = ["SEED_MODELS", "SNR_DEFINITION", "apply_seed_noise", "noise_power",

@@ -1,0 +1,53 @@
+"""The speckle likelihood: it is the simulator's noise, and its fit is unbiased."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker.bench.detect_data import speckle_information
+from tracker.detect.multiplicative import MultiplicativeFit, interval_scores
+from tracker.normal import pixel_fractions
+from tracker.sim.seednoise import apply_seed_noise
+
+
+def test_score_has_mean_zero_and_variance_equal_to_the_information_under_the_simulator():
+    """E[d log P / d mu] = 0 and E[score^2] = I hold only if the likelihood is the noise.
+
+    Pixels drawn by the simulator's own speckle (clip, then 8-bit rounding);
+    a likelihood that got the rounding or a clip wrong biases the mean score
+    by many standard errors.
+    """
+    rng = np.random.default_rng(5)
+    variance = 0.6
+    for clean in (0.004, 0.03, 0.2, 0.7):
+        noisy, _ = apply_seed_noise(np.full((400, 500), clean), "speckle", rng, param=variance)
+        k = np.rint(noisy * 255.0).ravel()
+        lo = np.where(k <= 0, -np.inf, k - 0.5)
+        hi = np.where(k >= 255, np.inf, k + 0.5)
+        _, by_mu, _ = interval_scores(lo, hi, 255.0 * clean, np.sqrt(variance))
+        score = 255.0 * by_mu                           # per unit of the clean value
+        info = float(speckle_information(variance, np.array([clean]))[0])
+        standard_error = np.sqrt(info / score.size)
+        assert abs(score.mean()) < 5.0 * standard_error, (clean, score.mean(), standard_error)
+        assert 0.95 < np.mean(score ** 2) / info < 1.05, (clean, np.mean(score ** 2), info)
+
+
+def test_fit_is_unbiased_from_windows_off_centre():
+    """300 spots drawn by the fit's own model from windows off-centre by up to 1 px."""
+    rng = np.random.default_rng(8)
+    n, radius, sigma, s_true = 300, 4, 1.2, 0.8
+    tx, ty = rng.uniform(-1.0, 1.0, n), rng.uniform(-1.0, 1.0, n)
+    edges = np.arange(-radius, radius + 2) - 0.5
+    fx, _ = pixel_fractions(edges[None, :] - tx[:, None], sigma)
+    fy, _ = pixel_fractions(edges[None, :] - ty[:, None], sigma)
+    mu = 400.0 * (fy[:, :, None] * fx[:, None, :]).reshape(n, -1)
+    values = np.rint(np.clip(mu * (1.0 + s_true * rng.standard_normal(mu.shape)), 0, 255))
+    fit = MultiplicativeFit(radius, sigma, 255.0)
+    x, y, ok = fit.fit(values, np.zeros_like(values), values.sum(axis=1))
+    assert ok.all()
+    err_x, err_y = x - tx, y - ty
+    rms = np.sqrt(np.mean(err_x ** 2 + err_y ** 2))
+    assert rms < 0.2, rms
+    # bias: mean error well inside its standard error of rms / sqrt(2 n) per axis x 4
+    assert abs(err_x.mean()) < 4 * rms / np.sqrt(2 * n)
+    assert abs(err_y.mean()) < 4 * rms / np.sqrt(2 * n)
