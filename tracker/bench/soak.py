@@ -296,9 +296,15 @@ def run(args, cfg: Config) -> int:
         while done["k"] < n and not fc.stop.is_set():
             time.sleep(0.05)
         time.sleep(0.5)                  # let the link's counters settle
-        fc.status_event.clear()
-        fc.ask("status")
-        fc.status_event.wait(10)
+        # a STATUS already queued may answer first: wait for one that counts every frame
+        frames = service.health.frames
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            fc.status_event.clear()
+            fc.ask("status")
+            fc.status_event.wait(1)
+            if (fc.last_status or {}).get("frames", -1) >= frames:
+                break
         service.request_stop()
 
     fc.start()
