@@ -77,3 +77,27 @@ def test_full_size_frames_allocate_nothing_frame_sized():
     assert counts > 6 * 50
     assert growth < GROWTH_LIMIT
     assert peak < PEAK_LIMIT
+
+
+def test_multiplicative_centroid_leaves_nothing_behind():
+    """detect.centroid_noise: multiplicative on speckle frames, 300 frames.
+
+    Its likelihood fit works on temporaries of (stars x window pixels x 4)
+    float64 per frame: they scale with the star count, never with the frame,
+    and are gone when the frame is done.
+    """
+    rng = np.random.default_rng(23)
+    shape = (256, 256)
+    frames = []
+    for _ in range(6):
+        xs, ys = rng.uniform(4, 251, 30), rng.uniform(4, 251, 30)
+        frames.append(render_points(shape, xs, ys, 10 ** rng.uniform(3.0, 4.5, 30), SimConfig(),
+                                    rng, noise_model="speckle", bit_depth=8).image)
+    det = make_detector(DetectConfig(method="default", centroid_noise="multiplicative"),
+                        shape, 8)
+    growth, peak, counts = _run(det, frames, 150)
+    assert counts > 150 * 10
+    assert growth < GROWTH_LIMIT
+    # 30 stars' temporaries come to about 0.6 MiB; a lasting frame-sized buffer
+    # would show in the growth
+    assert peak < 2 * PEAK_LIMIT, peak
