@@ -242,8 +242,10 @@ class IdentifyConfig:
     pair_tolerance_px: float = knob(1.5, "half-width of the band of catalogue separations "
                                     "each image separation selects", "px", min=0.01,
                                     max=100.0)
-    match_radius_px: float = knob(1.5, "an image star matches a predicted catalogue star "
-                                  "within this distance", "px", min=0.01, max=100.0)
+    match_radius_px: float = knob(1.0, "an image star matches a predicted catalogue star "
+                                  "within this distance; the chance of a false match grows "
+                                  "with its square, so keep it a few times the centroid "
+                                  "and calibration error", "px", min=0.01, max=100.0)
     max_prob_false: float = knob(1e-6, "accept a match only if the chance that it is wrong "
                                  "is below this (per frame; tracker.identify.verify)",
                                  "probability", min=1e-30, max=0.5)
