@@ -10,6 +10,9 @@ from tracker.detect import METHODS, make_detector
 from tracker.sim import render_points
 
 SHAPE = (48, 64)
+# every method, and the default detector set up for multiplicative noise
+CONFIGS = {m: DetectConfig(method=m) for m in sorted(METHODS)}
+CONFIGS["default-multiplicative"] = DetectConfig(centroid_noise="multiplicative")
 
 
 def _good_frame():
@@ -47,10 +50,10 @@ def _bad_frames():
     ]
 
 
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("config", sorted(CONFIGS))
 @pytest.mark.parametrize("name,frame,reason", _bad_frames(), ids=[b[0] for b in _bad_frames()])
-def test_bad_frame_gives_reason_and_next_frame_works(method, name, frame, reason):
-    det = make_detector(DetectConfig(method=method), SHAPE, 10)
+def test_bad_frame_gives_reason_and_next_frame_works(config, name, frame, reason):
+    det = make_detector(CONFIGS[config], SHAPE, 10)
     good = _good_frame()
     expected = det.detect(good).stars.copy()
     result = det.detect(frame)
@@ -65,19 +68,19 @@ def test_bad_frame_gives_reason_and_next_frame_works(method, name, frame, reason
     assert len(expected) >= 1
 
 
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("config", sorted(CONFIGS))
 @pytest.mark.parametrize("shape", [(1, 1), (2, 5)])
-def test_detector_for_a_tiny_frame_refuses_it_politely(method, shape):
-    det = make_detector(DetectConfig(method=method), shape, 10)
+def test_detector_for_a_tiny_frame_refuses_it_politely(config, shape):
+    det = make_detector(CONFIGS[config], shape, 10)
     result = det.detect(np.full(shape, 7, np.uint16))
     assert result.reason == "too_small" and result.count == 0
 
 
-@pytest.mark.parametrize("method", sorted(METHODS))
-def test_random_garbage_never_raises(method):
+@pytest.mark.parametrize("config", sorted(CONFIGS))
+def test_random_garbage_never_raises(config):
     """Uniform noise, huge values and negative floats: a result, never an exception."""
     rng = np.random.default_rng(3)
-    det = make_detector(DetectConfig(method=method), SHAPE, 10)
+    det = make_detector(CONFIGS[config], SHAPE, 10)
     frames = [rng.integers(0, 1024, SHAPE).astype(np.uint16),
               rng.normal(0, 1e6, SHAPE),
               -np.abs(rng.normal(0, 5, SHAPE)).astype(np.float32),

@@ -51,3 +51,26 @@ def test_fit_is_unbiased_from_windows_off_centre():
     # bias: mean error well inside its standard error of rms / sqrt(2 n) per axis x 4
     assert abs(err_x.mean()) < 4 * rms / np.sqrt(2 * n)
     assert abs(err_y.mean()) < 4 * rms / np.sqrt(2 * n)
+
+
+def test_fit_never_raises_on_windows_it_cannot_fit():
+    """Empty, saturated, random and sparse windows under odd backgrounds and fluxes.
+
+    A star whose curvature is singular (all-zero or all-clipped window) keeps
+    its start; nothing raises (np.linalg.solve on a stack would, for one
+    singular matrix) and nothing warns.
+    """
+    rng = np.random.default_rng(0)
+    fit = MultiplicativeFit(4, 1.2, 255.0)
+    windows = [np.zeros((3, 81)), np.full((3, 81), 255.0),
+               rng.integers(0, 256, (40, 81)).astype(float),
+               (rng.random((20, 81)) < 0.05) * 255.0]
+    for values in windows:
+        for background in (np.zeros_like(values), rng.normal(0.0, 5.0, values.shape),
+                           np.full(values.shape, 300.0), np.full(values.shape, -20.0)):
+            for flux in (values.sum(axis=1), np.full(len(values), -50.0),
+                         np.full(len(values), 1e9), np.full(len(values), np.nan)):
+                with np.errstate(divide="raise", over="raise", invalid="raise"):
+                    x, y, ok = fit.fit(values, background, flux)
+                assert x.shape == y.shape == ok.shape == (len(values),)
+                assert np.all(np.isfinite(x[ok])) and np.all(np.isfinite(y[ok]))

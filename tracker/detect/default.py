@@ -32,7 +32,8 @@ Per frame, with every buffer made at construction for one frame shape and
    stars are re-centred on their unclipped wings. With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
-   every centre instead, from the frame as delivered.
+   every centre instead, from the frame as delivered, and the shape tests
+   (sharp spots, ELONGATED) are off: a speckled star's pixels are spiky.
 
 The median of step 3, the float copy and Gaussian of step 4 and the
 threshold test of step 5 run in ``detect.threads`` horizontal slabs at once
@@ -264,13 +265,16 @@ class DefaultDetector:
             self.centroider.refine_multiplicative(n, self.speckle_fit, self.delivered_pad)
         else:
             self.centroider.refine_clipped(n, self.saturation, self.sigma, noise)
+        # Shape tests against the PSF, for spots bright enough to measure; under
+        # multiplicative noise a star's own pixels are spiky, so none applies.
+        judged = (v["snr"] >= self.cfg.sharp_min_snr) & (self.speckle_fit is None)
         # Second moment across the spot's narrowest axis: a PSF's is half its size,
         # and a star streaked by motion keeps it, while a cosmic-ray hit or track
         # is a pixel or so wide. Moments of no positive spot (what impulse
         # rejection leaves of a track) count as narrow.
         narrowest = 0.5 * v["size"] * (1.0 - v["ellipticity"])
         spot = (v["weighted"] > 0) & (v["size"] > 0) & (v["ellipticity"] <= 1.0)
-        sharp = (v["snr"] >= self.cfg.sharp_min_snr) & (
+        sharp = judged & (
             ~spot | (narrowest < self.cfg.sharp_size_ratio * 0.5 * self.expected_size))
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
@@ -291,7 +295,7 @@ class DefaultDetector:
         flags[(cols < r) | (rows < r) | (cols > w - 1 - r) | (rows > h - 1 - r)] |= StarFlag.EDGE
         flags[v["raw_peak"][keep] >= self.saturation] |= StarFlag.SATURATED
         flags[(v["ellipticity"][keep] > self.cfg.elongation_max)
-              & (v["snr"][keep] >= self.cfg.sharp_min_snr)] |= StarFlag.ELONGATED
+              & judged[keep]] |= StarFlag.ELONGATED
         flags[self.peaks.blended[:n][keep]] |= StarFlag.BLENDED
         self._flag_extended(s[:count], flags)
         s["flags"][:count] = flags

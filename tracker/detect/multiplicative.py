@@ -88,7 +88,7 @@ def interval_scores(lo: np.ndarray, hi: np.ndarray, mu: np.ndarray,
 
 
 class MultiplicativeFit:
-    """ML centres for stars in square windows of ``side`` = 2 r + 1 pixels.
+    """ML centres for stars in square windows of (2 ``radius`` + 1)^2 pixels.
 
     ``sigma``: PSF sigma, px. ``full``: the largest value a pixel can hold,
     ADU. ``iterations``: most Gauss-Newton steps.
@@ -122,9 +122,12 @@ class MultiplicativeFit:
                 break
             rows = (lo[active], hi[active], bg[active])
             ll, scores = self._likelihood(*rows, p[active], with_scores=True)
+            np.nan_to_num(scores, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
             grad = scores.sum(axis=1)
             curv = np.einsum("nki,nkj->nij", scores, scores) + 1e-9 * np.eye(4)
-            step = np.linalg.solve(curv, grad[..., None])[..., 0]
+            step = np.zeros_like(grad)            # a star with no curvature stays put
+            solvable = np.isfinite(curv).all(axis=(1, 2)) & (np.linalg.det(curv) > 0)
+            step[solvable] = np.linalg.solve(curv[solvable], grad[solvable][..., None])[..., 0]
             moved = self._line_search(rows, p, active, ll, step)
             active = active[moved > _CONVERGED_PX]
         ok = np.all(np.isfinite(p), axis=1)
