@@ -6,6 +6,7 @@ import numpy as np
 
 from tracker.bench.detect_data import speckle_information
 from tracker.detect.multiplicative import MultiplicativeFit, interval_scores
+from tracker.detect.windowed import _later_within
 from tracker.normal import pixel_fractions
 from tracker.sim.seednoise import apply_seed_noise
 
@@ -74,3 +75,14 @@ def test_fit_never_raises_on_windows_it_cannot_fit():
                     x, y, ok = fit.fit(values, background, flux)
                 assert x.shape == y.shape == ok.shape == (len(values),)
                 assert np.all(np.isfinite(x[ok])) and np.all(np.isfinite(y[ok]))
+
+
+def test_later_within_matches_brute_force():
+    """The duplicate mask (a centre within r of an earlier, brighter one) of the speckle mode."""
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        n = int(rng.integers(0, 40))
+        x, y, r = rng.uniform(0, 20, n), rng.uniform(0, 20, n), rng.uniform(0.5, 3.0)
+        d = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
+        expected = np.array([np.any(d[i, :i] <= r) for i in range(n)], bool)
+        np.testing.assert_array_equal(_later_within(x, y, r), expected)

@@ -197,7 +197,7 @@ class DetectConfig:
     centroid_noise: str = knob("additive", "default: noise the centroid is made for: additive "
                                "(shot, read, background: windowed centroid) or multiplicative "
                                "(speckle-like, noise proportional to the light: maximum-"
-                               "likelihood fit, about 50 ms more per frame; the shape tests "
+                               "likelihood fit, about 0.1 s more per frame; the shape tests "
                                "are off)", "name",
                                choices=("additive", "multiplicative"))
     centroid_iterations: int = knob(8, "default: most iterations of the windowed centroid",

@@ -32,8 +32,10 @@ Per frame, with every buffer made at construction for one frame shape and
    stars are re-centred on their unclipped wings. With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
-   every centre instead, from the frame as delivered, and the shape tests
-   (sharp spots, ELONGATED) are off: a speckled star's pixels are spiky.
+   every centre instead, from the frame as delivered; the shape tests
+   (sharp spots, ELONGATED) are off, a speckled star's pixels being spiky,
+   and candidates that end within 2 PSF sigma of a brighter one are
+   dropped as its duplicates.
 
 The median of step 3, the float copy and Gaussian of step 4 and the
 threshold test of step 5 run in ``detect.threads`` horizontal slabs at once
@@ -262,9 +264,11 @@ class DefaultDetector:
         self.grid.at(self.residual, cand, level)
         v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level)
         if self.speckle_fit is not None:  # its likelihood handles saturated stars too
-            self.centroider.refine_multiplicative(n, self.speckle_fit, self.delivered_pad)
+            merged = self.centroider.refine_multiplicative(
+                n, self.speckle_fit, self.delivered_pad, self.bg_pad, level, 2.0 * self.sigma)
         else:
             self.centroider.refine_clipped(n, self.saturation, self.sigma, noise)
+            merged = False
         # Shape tests against the PSF, for spots bright enough to measure; under
         # multiplicative noise a star's own pixels are spiky, so none applies.
         judged = (v["snr"] >= self.cfg.sharp_min_snr) & (self.speckle_fit is None)
@@ -279,7 +283,7 @@ class DefaultDetector:
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
-        keep = np.flatnonzero(~sharp)[: self.table.capacity]
+        keep = np.flatnonzero(~(sharp | merged))[: self.table.capacity]
         count = len(keep)
         rows, cols = self.layout.frame_position(cand[keep])
         s = self.table.stars

@@ -54,7 +54,8 @@ _GRID_PX = np.linspace(-1.5, 1.5, 5)
 _MIN_MU = 1e-3          # ADU; an expected value below this says "certainly 0"
 _MIN_FLUX = 1.0         # ADU
 _HALVINGS = 6
-_CONVERGED_PX = 1e-3    # a star whose centre moved less than this has converged
+_CONVERGED = 1e-3       # px: a star whose centre moved less, and whose flux and log s
+_CONVERGED_SHAPE = 1e-2  # changed less than this (relative, log), has converged
 _LOG_S_MIN, _LOG_S_MAX = np.log(1e-3), np.log(100.0)   # relative noise s kept in range
 
 
@@ -108,15 +109,20 @@ class MultiplicativeFit:
         window in order; ``background``: the same pixels' background, ADU;
         ``flux``: (n,) a first estimate of each star's flux, ADU.
         """
-        n = len(flux)
         k = np.asarray(values, np.float64)
         lo = np.where(k <= 0.0, -np.inf, k - 0.5)
         hi = np.where(k >= self.full, np.inf, k + 0.5)
         bg = np.asarray(background, np.float64)
-        p = np.zeros((n, 4))
+        p = np.zeros((len(flux), 4))
         p[:, 2] = np.maximum(flux, _MIN_FLUX)
         p[:, :2] = self._grid_start(lo, hi, bg, p)
-        active = np.arange(n)                     # stars still moving
+        p = self._climb(lo, hi, bg, p)
+        ok = np.all(np.isfinite(p), axis=1)
+        return p[:, 0], p[:, 1], ok
+
+    def _climb(self, lo, hi, bg, p) -> np.ndarray:
+        """Gauss-Newton steps from ``p`` (changed in place and returned)."""
+        active = np.arange(len(p))                # stars still changing
         for _ in range(self.iterations):
             if len(active) == 0:
                 break
@@ -129,15 +135,16 @@ class MultiplicativeFit:
             solvable = np.isfinite(curv).all(axis=(1, 2)) & (np.linalg.det(curv) > 0)
             step[solvable] = np.linalg.solve(curv[solvable], grad[solvable][..., None])[..., 0]
             moved = self._line_search(rows, p, active, ll, step)
-            active = active[moved > _CONVERGED_PX]
-        ok = np.all(np.isfinite(p), axis=1)
-        return p[:, 0], p[:, 1], ok
+            active = active[moved > _CONVERGED]
+        return p
 
     def _line_search(self, rows, p, active, ll, step) -> np.ndarray:
         """Take ``step`` for the ``active`` stars, halved until the likelihood does not fall.
 
-        Updates p in place; returns how far each star's centre moved, px
-        (0 where no fraction of the step helped).
+        Updates p in place; returns each star's largest change, the flux's
+        (relative) and log s's scaled to the centre's tolerance (0 where no
+        fraction of the step helped): the first steps mostly fix the flux
+        and s, so a still centre alone does not mean convergence.
         """
         base = p[active]
         scale = np.ones(len(active))
@@ -153,7 +160,10 @@ class MultiplicativeFit:
                 break
             scale[pending] *= 0.5
         scale[pending] = 0.0
-        return np.max(np.abs(scale[:, None] * step[:, :2]), axis=1)
+        change = np.abs(scale[:, None] * step)
+        change[:, 2] /= base[:, 2]
+        change[:, 2:] *= _CONVERGED / _CONVERGED_SHAPE
+        return np.max(change, axis=1)
 
     def _grid_start(self, lo, hi, bg, p) -> np.ndarray:
         """(n, 2): the grid point of highest likelihood per star (flux from p, s = 1)."""

@@ -53,6 +53,7 @@ class WindowedCentroider:
                  iterations: int, tolerance: float, max_shift: float, capacity: int,
                  dtype: type = np.float32) -> None:
         dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+        self.stride = int(stride)
         self.offsets = (dy * stride + dx).ravel().astype(np.intp)
         self.dx = dx.ravel().astype(np.float64)
         self.dy = dy.ravel().astype(np.float64)
@@ -158,26 +159,50 @@ class WindowedCentroider:
             y = np.clip(y + step[:, 1], -self.max_shift, self.max_shift)
         v["x0"][rows], v["y0"][rows] = x, y
 
-    def refine_multiplicative(self, n: int, fit: MultiplicativeFit,
-                              delivered_pad: np.ndarray) -> None:
+    def refine_multiplicative(self, n: int, fit: MultiplicativeFit, delivered_pad: np.ndarray,
+                              bg_pad: np.ndarray, level: np.ndarray,
+                              merge_px: float) -> np.ndarray:
         """Re-centre the first ``n`` stars by ``fit``'s likelihood for speckle-like noise.
 
         The windowed centroid is made for additive noise; under noise
         proportional to the light (tracker.detect.multiplicative) the
-        brightest, noisiest pixels pull it. The fit reads the same windows
-        of ``delivered_pad``, the frame before impulse rejection, padded
-        like the measured image. A fit that fails or lands more than
-        ``max_shift`` px from the candidate pixel keeps the windowed centre.
-        Updates ``x0``/``y0`` in place.
+        brightest, noisiest pixels pull it. The fit reads the windows of
+        ``delivered_pad``, the frame before impulse rejection, padded like
+        the measured image, over the background ``bg_pad`` plus ``level``
+        (as ``measure`` took them). The peak of a faint speckled star can
+        sit a pixel or two from its centre, so a centre more than half a
+        pixel from its window's is fitted again in a window around it, and
+        centres up to ``radius - 1`` px from the candidate pixel are kept.
+        A fit that fails or lands farther keeps the windowed centre.
+        Updates ``x0``/``y0`` in place. Two candidates on one speckled star
+        end on one centre: returns the mask of stars whose centre is within
+        ``merge_px`` of an earlier (brighter) star's.
         """
         if n == 0:
-            return
-        background = self.win[:n] - self.s[:n]
-        delivered = np.take(delivered_pad.ravel(), self.index[:n], mode="clip")
-        x, y, ok = fit.fit(delivered, background, (delivered - background).sum(axis=1))
-        ok &= (np.abs(x) <= self.max_shift) & (np.abs(y) <= self.max_shift)
+            return np.zeros(0, bool)
+        index = self.index[:n]
+        x, y, ok = self._fit_windows(fit, index, delivered_pad, bg_pad, level[:n])
+        far = np.flatnonzero(ok & ((np.abs(x) > 0.5) | (np.abs(y) > 0.5)))
+        if len(far):
+            sx, sy = np.rint(x[far]), np.rint(y[far])
+            moved = index[far] + (sy * self.stride + sx).astype(np.intp)[:, None]
+            x2, y2, ok2 = self._fit_windows(fit, moved, delivered_pad, bg_pad, level[far])
+            x[far], y[far], ok[far] = sx + x2, sy + y2, ok2
+        reach = self.side // 2 - 1
+        ok &= (np.abs(x) <= reach) & (np.abs(y) <= reach)
         self.v["x0"][:n][ok] = x[ok]
         self.v["y0"][:n][ok] = y[ok]
+        centre = index[:, len(self.offsets) // 2]
+        return _later_within(centre % self.stride + self.v["x0"][:n],
+                             centre // self.stride + self.v["y0"][:n], merge_px)
+
+    @staticmethod
+    def _fit_windows(fit: MultiplicativeFit, index: np.ndarray, delivered_pad: np.ndarray,
+                     bg_pad: np.ndarray, level: np.ndarray):
+        """``fit`` on the windows at padded flat indices ``index`` (n, pixels)."""
+        delivered = np.take(delivered_pad.ravel(), index, mode="clip")
+        background = np.take(bg_pad.ravel(), index, mode="clip") + level[:, None]
+        return fit.fit(delivered, background, (delivered - background).sum(axis=1))
 
     def _weights(self, n: int, x0: np.ndarray, y0: np.ndarray) -> None:
         """w = exp(-((dx - x0)^2 + (dy - y0)^2) / (2 w^2)); ws = w * s."""
@@ -247,3 +272,24 @@ class WindowedCentroider:
         np.max(self.win[:n, self.centre], axis=1, out=v["raw_peak"])
         np.greater(s, 3.0 * noise[:n, None], out=self.t[:n])
         np.sum(self.t[:n], axis=1, out=v["npix"])
+
+
+def _later_within(x: np.ndarray, y: np.ndarray, radius: float) -> np.ndarray:
+    """Mask of points within ``radius`` of an earlier point in the arrays' order.
+
+    Sorted by x, each point is compared only with those within ``radius`` in x.
+    """
+    n = len(x)
+    later = np.zeros(n, bool)
+    if n < 2:
+        return later
+    order = np.argsort(x, kind="stable")
+    xs, ys = x[order], y[order]
+    stop = np.searchsorted(xs, xs + radius, side="right")
+    counts = stop - np.arange(n) - 1                     # neighbours to the right in x
+    first = np.repeat(np.arange(n), counts)
+    second = first + 1 + np.arange(len(first)) - np.repeat(np.cumsum(counts) - counts, counts)
+    close = np.hypot(xs[second] - xs[first], ys[second] - ys[first]) <= radius
+    a, b = order[first[close]], order[second[close]]
+    later[np.maximum(a, b)] = True
+    return later
