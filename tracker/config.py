@@ -94,8 +94,18 @@ class SimConfig:
         "realistic", "sensor model (realistic, none) or one of the seed method's 8-bit "
         "noise models", choices=("realistic", "none", "gaussian_poisson", "salt_pepper",
                                  "speckle", "glare"))
-    psf_sigma_px: float = knob(1.2, "Gaussian PSF sigma (M12 lens slightly defocused)", "px",
+    psf_sigma_px: float = knob(1.2, "PSF sigma (M12 lens slightly defocused); for other "
+                               "shapes, the sigma of the Gaussian of the same FWHM", "px",
                                min=0.2, max=20.0)
+    psf_shape: str = knob("gaussian", "PSF family: gaussian, moffat (broad wings) or airy "
+                          "(diffraction core and rings); tracker.sim.psf_shapes", "name",
+                          choices=("gaussian", "moffat", "airy"))
+    psf_beta: float = knob(3.0, "moffat: wing exponent beta (small = broad wings)", "",
+                           min=1.1, max=50.0)
+    psf_ellipticity: float = knob(0.0, "PSF ellipticity (a^2 - b^2) / (a^2 + b^2) of its "
+                                  "axes", "ratio", min=0.0, max=0.9)
+    psf_angle_deg: float = knob(0.0, "direction of the PSF's long axis from +x toward +y",
+                                "deg", min=-360.0, max=360.0)
     exposure_ms: float = knob(100.0, "exposure time", "ms", min=0.001, max=60000.0)
     f_number: float = knob(2.0, "lens focal ratio; aperture = focal length / f_number", "f/#",
                            min=0.5, max=64.0)
@@ -141,8 +151,18 @@ class SimConfig:
     speckle_variance: float = knob(0.15, "speckle: variance of the multiplicative mask "
                                    "(mean 1)", "(mask value)^2", min=0.0)
     snr_db: float | None = knob(None, "seed noise models: target image SNR (sets the model's "
-                                "strength); null = use its parameter as given", "dB",
+                                "strength, or the sky level: snr_sets); null = use its "
+                                "parameter and seed_sky as given", "dB",
                                 min=-40.0, max=60.0)
+    snr_sets: str = knob("parameter", "seed noise models: what a target snr_db sets: the "
+                         "model's parameter, or the sky level under the stars with the "
+                         "parameter as given (sky)", "name", choices=("parameter", "sky"))
+    seed_star_gain: float = knob(1.0, "seed noise models: factor on the stars' light before "
+                                 "the noise (a longer exposure of the photographed screen)",
+                                 "", min=1e-6, max=1e6)
+    seed_sky: float = knob(0.0, "seed noise models: sky level under the stars before the "
+                           "noise (a photographed screen's glow)", "fraction", min=0.0,
+                           max=1.0)
     smear: bool = knob(True, "integrate star motion within the exposure when slewing")
     fps: float = knob(10.0, "frame rate of simulated sequences", "Hz", min=0.001,
                       max=1000.0)
