@@ -187,12 +187,33 @@ class DetectConfig:
                                    choices=(3, 5, 7, 9, 11, 13, 15))
     seed_threshold_frac: float = knob(0.3, "seed method: threshold as a fraction of the "
                                       "filtered image's maximum", "fraction", min=0.01, max=0.99)
-    psf_sigma_px: float = knob(1.2, "default: Gaussian PSF sigma of the optics (sets the "
-                               "matched filter and the centroid window)", "px",
-                               min=0.3, max=10.0)
-    threshold_sigma: float = knob(6.0, "default: detection threshold on the matched-filtered "
-                                  "image, in units of its background noise", "sigma",
-                                  min=1.0, max=1000.0)
+    psf_sigma_px: float = knob(1.2, "default: PSF sigma of the optics to start from (the "
+                               "Gaussian of the same FWHM); each frame's stars then measure "
+                               "it (psf_measure), and it sets the matched filter, the "
+                               "centroid window and the centroid fit", "px",
+                               min=0.45, max=3.5)
+    psf_measure: bool = knob(True, "default: measure the PSF on every frame from its bright, "
+                             "isolated, unsaturated stars (false: psf_sigma_px throughout)")
+    psf_min_stars: int = knob(5, "default: fewest agreeing stars for a frame's own PSF "
+                              "measurement (fewer: the previous estimate is kept)", "stars",
+                              min=1, max=64)
+    psf_min_peak_sigma: float = knob(10.0, "default: a star measures the PSF if its peak "
+                                     "pixel is this far above the background", "sigma",
+                                     min=3.0, max=1e6)
+    psf_memory_frames: int = knob(20, "default: frames whose agreeing PSF measurements are "
+                                  "averaged (1 = each frame alone); a measurement that "
+                                  "disagrees replaces the average at once", "frames",
+                                  min=1, max=100000)
+    false_alarms_per_frame: float = knob(0.1, "default: noise peaks a frame may report on "
+                                         "average; sets the detection threshold on the "
+                                         "matched-filtered image for the frame's size, PSF "
+                                         "and noise (tracker.detect.threshold)", "peaks",
+                                         min=1e-9, max=1000.0)
+    threshold_sigma: float | None = knob(None, "default: detection threshold on the "
+                                         "matched-filtered image, in units of its background "
+                                         "noise, instead of false_alarms_per_frame's (raised "
+                                         "for skewed noise either way)", "sigma",
+                                         min=1.0, max=1000.0)
     background_tile_px: int = knob(32, "default: side of the background grid's tiles", "px",
                                    min=4, max=4096)
     background_step_px: int = knob(4, "default: spacing of the pixels sampled in each "
@@ -229,6 +250,11 @@ class DetectConfig:
                                    "fraction of the PSF's (a cosmic-ray hit or track; a "
                                    "streaked star keeps the PSF's width)", "fraction",
                                    min=0.0, max=1.0)
+    rough_ratio: float = knob(12.0, "default: reject a spot whose pixel-scale roughness "
+                              "(Laplacian energy over energy) exceeds this multiple of a point "
+                              "source's under the frame's PSF (clusters of cosmic-ray hits and "
+                              "touching impulses; no image of the sky is rougher than a point)",
+                              "ratio", min=1.0, max=1e6)
     sharp_min_snr: float = knob(10.0, "default: apply the sharpness and elongation tests "
                                 "only above this SNR", "sigma", min=0.0, max=1e6)
     elongation_max: float = knob(0.3, "default: flag ELONGATED above this ellipticity of "
@@ -236,6 +262,15 @@ class DetectConfig:
     extended_ratio: float = knob(2.0, "default: flag EXTENDED an unsaturated source whose "
                                  "flux/peak (its effective area) exceeds this multiple of "
                                  "the frame's median", "ratio", min=1.0, max=100.0)
+    body_ratio: float = knob(5.0, "default: mask (do not report) a source whose flux/peak "
+                             "exceeds this multiple of the frame's median: a maximum on a "
+                             "ghost's disc, a planet or lit ground, as wide as the centroid "
+                             "window", "ratio", min=1.0, max=1000.0)
+    min_sky_sectors: int = knob(3, "default: mask a candidate with fewer of the eight sectors "
+                                "around it (3.5 PSF sigmas out) at the sky's level and noise: a "
+                                "bump on lit terrain, foliage or a planet's disc (0 = off; a "
+                                "star beside such a body keeps the sectors on the sky side)",
+                                "sectors", min=0, max=8)
     saturation_adu: float | None = knob(None, "default: level flagged SATURATED; null = "
                                         "full scale of the bit depth", "ADU", min=1.0)
     max_candidates: int = knob(2048, "default: local maxima examined per frame (brightest "

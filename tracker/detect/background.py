@@ -25,13 +25,29 @@ import cv2
 import numpy as np
 
 from tracker.detect.layout import PaddedLayout
+from tracker.normal import erf
 
 __all__ = ["BackgroundGrid", "QUANTISATION_NOISE_ADU"]
 
 QUANTISATION_NOISE_ADU = float(np.sqrt(1.0 / 12.0))
 _MEAN_ABS_IN_IQR = 0.3247  # E|z| for a standard normal z restricted to its middle half
 _ONE_SIGMA_ABOVE = 0.84134  # fraction of a Gaussian below mean + sigma
-_TRIMMED_STD = 0.909  # std / sigma of 64 Gaussian samples without their extremes
+_TRIM_FRACTION = 1.0 / 16.0  # trimmed noise: drop this fraction of samples at each end
+
+
+def _truncated_normal_std(p: float) -> float:
+    """Standard deviation of a unit normal without its lowest and highest fraction ``p``."""
+    a = float(-np.sqrt(2.0) * _erfinv(2.0 * p - 1.0))       # Phi^-1(1 - p)
+    pdf = float(np.exp(-0.5 * a * a) / np.sqrt(2.0 * np.pi))
+    return float(np.sqrt(1.0 - 2.0 * a * pdf / (1.0 - 2.0 * p)))
+
+
+def _erfinv(y: float) -> float:
+    """Inverse error function by Newton's method on tracker.normal.erf (|y| < 1)."""
+    x = 0.0
+    for _ in range(60):
+        x -= (float(erf(np.array(x))) - y) / (2.0 / np.sqrt(np.pi) * np.exp(-x * x))
+    return x
 
 
 def _tile_lattice(length: int, tiles: int, step: int) -> np.ndarray:
@@ -71,7 +87,9 @@ class BackgroundGrid:
         self.level_raw = np.zeros(self.grid_shape, np.float32)
         self.upper = np.zeros(self.grid_shape, np.float32)
         self._upper = int(round(_ONE_SIGMA_ABOVE * (m - 1)))
-        self.trim_dev = np.zeros((ny, nx, max(m - 2, 0)), np.float32)
+        self._trim = max(1, int(round(_TRIM_FRACTION * m)))
+        self._trimmed_std = _truncated_normal_std(self._trim / m)
+        self.trim_dev = np.zeros((ny, nx, max(m - 2 * self._trim, 0)), np.float32)
         self.trim_pow = np.zeros(self.trim_dev.shape, np.float32)
         self.moment2 = np.zeros(self.grid_shape, np.float32)
         self.moment3 = np.zeros(self.grid_shape, np.float32)
@@ -93,13 +111,14 @@ class BackgroundGrid:
 
         With ``upper`` the noise is also at least the distance from the level
         up to the 84.13th percentile, and at least the standard deviation of
-        the samples without their lowest and highest (divided by 0.909, its
+        the samples without their lowest and highest sixteenth (divided by 0.754, its
         value for Gaussian samples): noise with a long bright tail, or a
         background clipped at zero so that most pixels read exactly 0 (photon
         noise of a few counts), then gets the larger, honest figure, where the
         middle-half estimate would see no spread at all. For Gaussian noise
         all three agree.
         """
+        m = self.samples.shape[-1]
         if padded.dtype == self.int_samples.dtype:
             np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
             np.copyto(self.samples, self.int_samples)
@@ -118,7 +137,7 @@ class BackgroundGrid:
         if upper:
             np.subtract(self.samples[..., self._upper], self.level_raw, out=self.upper)
             np.maximum(self.raw, self.upper, out=self.raw)
-            trimmed = self.samples[..., 1:-1]
+            trimmed = self.samples[..., self._trim:m - self._trim]
             np.mean(trimmed, axis=-1, out=self.upper)
             np.subtract(trimmed, self.upper[..., None], out=self.trim_dev)
             np.multiply(self.trim_dev, self.trim_dev, out=self.trim_pow)
@@ -126,7 +145,7 @@ class BackgroundGrid:
             np.multiply(self.trim_pow, self.trim_dev, out=self.trim_pow)
             np.mean(self.trim_pow, axis=-1, out=self.moment3)  # for skewness()
             np.sqrt(self.moment2, out=self.upper)
-            np.multiply(self.upper, 1.0 / _TRIMMED_STD, out=self.upper)
+            np.multiply(self.upper, 1.0 / self._trimmed_std, out=self.upper)
             np.maximum(self.raw, self.upper, out=self.raw)
         np.maximum(self.raw, floor, out=self.raw)
         self._smooth(self.raw, noise)

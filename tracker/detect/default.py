@@ -1,7 +1,9 @@
-"""The project's detector: robust background, impulse rejection, matched filter, windowed centroid.
+"""The project's detector: robust background, impulse rejection, the PSF measured, matched filter.
 
 Per frame, with every buffer made at construction for one frame shape and
-``detect.max_stars``:
+``detect.max_stars`` (PSF-dependent parts are rebuilt only when the PSF
+moves by more than a few per cent, and never grow beyond the widest PSF
+handled, sigma 3.5 px):
 
 1. ``input``: check the frame and copy it into a zero-bordered uint16
    buffer (tracker.detect.frame_input; bad frames give a reason code; other
@@ -12,24 +14,34 @@ Per frame, with every buffer made at construction for one frame shape and
 2. ``background``: per-tile median and low-side noise on a coarse grid,
    3x3-median-filtered and interpolated to full size (tracker.detect.background).
 3. ``impulses``: hot pixels, cosmic-ray tracks and salt-and-pepper pixels,
-   recognised by being much sharper than the PSF, are replaced by their 3x3
-   median and counted (tracker.detect.impulse).
-4. ``filter``: Gaussian of the PSF sigma (the matched filter), on a float32
-   copy (OpenCV's Gaussian is fastest on float32). The background is not
-   subtracted from the whole image: the threshold image carries it
+   recognised by being much sharper than the sharpest PSF the detector
+   handles (sigma 0.45 px), are replaced by their 3x3 median and counted
+   (tracker.detect.impulse).
+4. ``psf``: the PSF's width and ellipticity measured from the frame's
+   brightest isolated, unsaturated stars and smoothed across frames
+   (tracker.detect.psf); ``detect.psf_sigma_px`` is only the start. The
+   impulse candidates are then tested again against this PSF (a sharper
+   cut now that the stars' own sharpness is known), each replaced pixel
+   taking the median of its cleaned neighbourhood.
+5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
+   float32 copy (OpenCV's Gaussian is fastest on float32). The background is
+   not subtracted from the whole image: the threshold image carries it
    (background + filtered level left + k times the filtered noise, one
    interpolation of one grid), and the filtered statistics and every
-   sparse read subtract it where they look. k is
-   ``detect.threshold_sigma``, moved out for skewed noise to the same tail
-   probability (Cornish-Fisher, from the filtered background's skewness):
-   photon noise of a few counts per pixel otherwise puts clumps of counts
-   above a Gaussian-calibrated cut.
-5. ``peaks``: local maxima above that threshold; close pairs split where the
+   sparse read subtract it where they look. k comes from the false-alarm
+   budget ``detect.false_alarms_per_frame`` for this frame's size and PSF,
+   moved to the same tail probability for the frame's own noise
+   distribution (tracker.detect.threshold: a saddlepoint of its background
+   pixels' histogram; Cornish-Fisher from the skewness when too few tiles
+   are free of stars or neighbouring pixels are correlated).
+6. ``peaks``: local maxima above that threshold; close pairs split where the
    profile dips between them (tracker.detect.peaks).
-6. ``centroid``: iterative Gaussian-windowed centroid, flux, SNR and shape
-   (tracker.detect.windowed). Spots much narrower than the PSF (cosmic-ray
-   clusters that survived step 3) are rejected and counted. Saturated
-   stars are re-centred on their unclipped wings. With
+7. ``centroid``: iterative Gaussian-windowed centroid, then a fit of the
+   pixel-integrated PSF for the centre (no pixel-phase bias; saturated
+   pixels censored; tracker.detect.fit), flux, SNR and shape
+   (tracker.detect.windowed). Spots much narrower than the PSF, or rougher
+   at the pixel scale than any image of the sky (cosmic-ray clusters that
+   survived steps 3-4), are rejected and counted. With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
    every centre instead, from the frame as delivered; the shape tests
@@ -37,13 +49,16 @@ Per frame, with every buffer made at construction for one frame shape and
    and candidates that end within 2 PSF sigma of a brighter one are
    dropped as its duplicates.
 
-The median of step 3, the float copy and Gaussian of step 4 and the
-threshold test of step 5 run in ``detect.threads`` horizontal slabs at once
-(tracker.detect.slabs; the result does not depend on the thread count).
+The median of step 3, the float copy and Gaussian of step 5 and the
+threshold tests of steps 4 and 6 run in ``detect.threads`` horizontal slabs
+at once (tracker.detect.slabs; the result does not depend on the thread
+count).
 
 ``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
-found in step 3 plus sharp spots from step 6), sharp_spots, candidates.
-Stars are ordered brightest first (by matched-filter peak).
+found in steps 3-4 plus sharp spots from step 7), sharp_spots, candidates,
+left_out (stars beyond ``detect.max_stars``). ``Detections.psf_*``: the PSF
+used. Stars are ordered most significant first (by SNR); beyond
+``detect.max_stars`` the least significant are left out.
 """
 
 from __future__ import annotations
@@ -55,23 +70,92 @@ import numpy as np
 
 from tracker.config import DetectConfig
 from tracker.detect.background import QUANTISATION_NOISE_ADU, BackgroundGrid
+from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.frame_input import FrameInput, Reason
 from tracker.detect.impulse import ImpulseFilter, psf_contrast
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.multiplicative import MultiplicativeFit
 from tracker.detect.peaks import PeakFinder
+from tracker.detect.psf import (
+    SIGMA_MAX_PX,
+    SIGMA_MIN_PX,
+    PsfMeter,
+    PsfTracker,
+    combine_stars,
+    pixel_tensor_to_optics,
+)
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.slabs import SlabRunner
 from tracker.detect.stars import StarTable
+from tracker.detect.surroundings import Surroundings, sky_noise_model
+from tracker.detect.threshold import NoiseTail, gaussian_peak_threshold, skewed_threshold
 from tracker.detect.windowed import WindowedCentroider
+from tracker.normal import pixel_fractions
 from tracker.timing import StageTimer
 
 __all__ = ["DefaultDetector", "effective_sigma"]
+
+_SIGMA_STEP = math.log(1.03)   # PSF sigmas are used in steps of 3 %
+_PSF_STARS = 96                # brightest stars examined for the PSF ...
+_PSF_PEAKS = 512               # ... among this many brightest peaks, impulses set aside
+_PSF_IMPULSE_CONTRAST = 0.95   # a peak this far above its 3x3 median is an impulse
+_PSF_PIXELS = 32768            # pixels above the PSF stage's threshold examined
+_PSF_RING_SIGMAS = 4.5         # tracker.detect.psf's isolation ring reaches this far
+_CHUNK = 128                   # stars centroided at a time (bounds the window buffers)
+_ROUGH_REFERENCE_SNR = 30.0    # spots this bright set the frame's roughness reference
+_STAR_WIDTH = math.log(1.25)   # ... if their width is within 25 % of the PSF's
+_STAR_ELLIPTICITY = 0.2        # ... and they are round
+_TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
+_TRACK_ELLIPTICITY = 0.3       # ... this elongated is a particle's track
+_IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
+_FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
+_SECOND_LOOKS = 2              # searches again with a PSF measured on the candidates
+_SECOND_LOOK_CHANGE = math.log(1.25)  # ... when it is this far from the one used
+_SECOND_LOOK_SNR = 20.0        # ... from candidates this significant
+_SKY_RING_SIGMAS = 3.5         # a candidate's surroundings: from this many PSF sigmas ...
+_SKY_RING_WIDTH = 2            # ... outward by this many pixels
+_TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is textured,
+_TEXTURED_SKY_SECTORS = 6      # ... and its candidates need this many sky sectors
+_TILE_NEIGHBOURS = np.ones((3, 3), np.uint8)
 
 
 def effective_sigma(psf_sigma_px: float) -> float:
     """Sigma of a Gaussian PSF after integration over a square pixel, px."""
     return math.sqrt(psf_sigma_px ** 2 + 1.0 / 12.0)
+
+
+def _window_radius(psf_sigma_px: float) -> int:
+    """Centroid window radius, px: 3 sigma of the pixel-integrated PSF."""
+    return int(math.ceil(3.0 * effective_sigma(psf_sigma_px)))
+
+
+def _kernel_half(psf_sigma_px: float) -> int:
+    """Matched filter's half-width, px: round(2 sigma) of the pixel-integrated PSF.
+
+    The cut-off kernel keeps >= 99 % of the matched filter's SNR (its square
+    holds >= 99.5 % of the PSF's squared mass per axis) and costs two thirds
+    of a 2.5-sigma one (5x5 instead of 7x7 at sigma 1.2).
+    """
+    return max(1, int(round(2.0 * effective_sigma(psf_sigma_px))))
+
+
+def _point_roughness(centroider: WindowedCentroider, sigma_px: float) -> float:
+    """The windowed roughness of a noise-free pixel-integrated Gaussian star, px^-4.
+
+    Averaged over centres on a pixel's centre, edge and corner; the
+    reference a spot's roughness is compared with.
+    """
+    r = centroider.radius
+    edges = np.arange(-r, r + 2, dtype=np.float64) - 0.5
+    values = []
+    for phase in ((0.0, 0.0), (0.5, 0.0), (0.5, 0.5)):
+        fx, _ = pixel_fractions(edges - phase[0], sigma_px)
+        fy, _ = pixel_fractions(edges - phase[1], sigma_px)
+        s = np.outer(fy, fx)
+        lap = (4.0 * s[1:-1, 1:-1] - s[:-2, 1:-1] - s[2:, 1:-1] - s[1:-1, :-2]
+               - s[1:-1, 2:])
+        values.append(float(np.sum(lap * lap) / np.sum(s * s)))
+    return float(np.mean(values))
 
 
 def _reflected_noise_gain(kernel: np.ndarray, rows: int,
@@ -104,11 +188,10 @@ class DefaultDetector:
 
     def __init__(self, cfg: DetectConfig, shape: tuple[int, int], bit_depth: int) -> None:
         self.cfg = cfg
-        sigma = effective_sigma(cfg.psf_sigma_px)
-        self.sigma = sigma
-        self.radius = int(math.ceil(3.0 * sigma))
-        blend = 2 * self.radius if cfg.blend_radius_px is None else int(cfg.blend_radius_px)
-        layout = PaddedLayout(shape, max(self.radius, blend) + 1)
+        max_radius = _window_radius(SIGMA_MAX_PX)
+        max_blend = 2 * max_radius if cfg.blend_radius_px is None else int(cfg.blend_radius_px)
+        psf_radius = int(math.ceil(_PSF_RING_SIGMAS * effective_sigma(SIGMA_MAX_PX)))
+        layout = PaddedLayout(shape, max(max_radius, max_blend, psf_radius) + 1)
         self.layout = layout
         self.input = FrameInput(shape, bit_depth, min_size=3, layout=layout, dtype=np.uint16)
         self.saturation = (self.input.full_scale if cfg.saturation_adu is None
@@ -127,42 +210,99 @@ class DefaultDetector:
         self.bg_pad, self.bg = layout.buffer(np.float32)
         # impulse_sigma times the pixel noise in whole ADU, like the differences it bounds
         self.limit_pad, self.impulse_limit = layout.buffer(np.uint16)
+        self.bright_pad, self.bright_threshold = layout.buffer(np.uint16)  # the PSF stage's
         self.work_float = np.zeros(self.input.shape, np.float32)  # the filter's input
         self.filt_pad, self.filt = layout.buffer(np.float32)
         self.threshold = np.zeros(self.input.shape, np.float32)  # background included, ADU
+        # An impulse is sharper than the sharpest PSF the detector is made for (0.55 px,
+        # at its sharpest sub-pixel phase), whatever this frame's PSF turns out to be.
         contrast = (cfg.impulse_contrast if cfg.impulse_contrast is not None
-                    else 0.5 * (1.0 + psf_contrast(cfg.psf_sigma_px)))
+                    else 0.5 * (1.0 + psf_contrast(_FIRST_PASS_SIGMA_PX, worst_phase=True)))
         self.impulses = ImpulseFilter(layout, contrast, cfg.max_impulses, np.uint16,
                                       cfg.threads)
-        # Half-width round(2 sigma): the cut-off kernel keeps >= 99 % of the matched
-        # filter's SNR (its square holds >= 99.5 % of the PSF's squared mass per axis)
-        # and costs two thirds of a 2.5-sigma one (5x5 instead of 7x7 at sigma 1.2).
-        k = 2 * int(round(2.0 * sigma)) + 1
-        self.ksize = (k, k)
-        kernel = cv2.getGaussianKernel(k, sigma, cv2.CV_64F).ravel()
-        self.filter_gain = float(np.sum(kernel ** 2))  # filtered / pixel noise, white noise
-        self.threshold_k = float(cfg.threshold_sigma)
-        self.filter_slabs = SlabRunner(layout.rows, layout.cols, k // 2, cfg.threads,
-                                       np.float32)
-        self.edge_gain = _reflected_noise_gain(kernel, layout.rows, layout.cols)
-        self.peaks = PeakFinder(layout, blend, cfg.deblend_dip_sigma, cfg.max_pixels_above,
+        self.filter_slabs = SlabRunner(layout.rows, layout.cols, _kernel_half(SIGMA_MAX_PX),
+                                       cfg.threads, np.float32)
+        self.peaks = PeakFinder(layout, 1, cfg.deblend_dip_sigma, cfg.max_pixels_above,
                                 cfg.max_candidates, slabs=self.filter_slabs)
+        self.bright = PeakFinder(layout, psf_radius, cfg.deblend_dip_sigma, _PSF_PIXELS,
+                                 _PSF_PEAKS, slabs=self.filter_slabs, dtype=np.uint16)
+        self.psf_values = np.zeros(_PSF_PEAKS, np.float32)
+        self.psf_reads = np.zeros(_PSF_PEAKS, np.uint16)
+        self.psf_contrast = np.zeros(_PSF_PEAKS, np.float32)
+        self.psf_cand = np.zeros(_PSF_STARS, np.intp)
+        self.psf_noise = np.zeros(_PSF_STARS, np.float32)
+        self.psf_meter = PsfMeter(layout.stride, psf_radius, _PSF_STARS, cfg.psf_min_stars)
+        self.psf_tracker = PsfTracker(cfg.psf_sigma_px, cfg.psf_memory_frames)
+        self.psf = self.psf_tracker.current
+        self.fit = PixelGaussianFit(_CHUNK, 2 * max_radius + 1)
         self.centroider = WindowedCentroider(
-            layout.stride, self.radius, sigma, gain=2.0, iterations=cfg.centroid_iterations,
+            layout.stride, max_radius, gain=2.0, iterations=cfg.centroid_iterations,
             tolerance=cfg.centroid_tolerance_px, max_shift=1.5, capacity=cfg.max_candidates,
-            dtype=np.uint16)
+            dtype=np.uint16, chunk=_CHUNK,
+            fit=None if cfg.centroid_noise == "multiplicative" else self.fit)
         # multiplicative noise: the likelihood fit reads the frame as delivered, since
         # the impulse filter takes the spikes of speckle for hot pixels
         self.speckle_fit = None
         if cfg.centroid_noise == "multiplicative":
-            self.speckle_fit = MultiplicativeFit(self.radius, cfg.psf_sigma_px,
-                                                 self.input.full_scale)
             self.delivered_pad = np.zeros_like(self.input.padded)
-        self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
         self.cand_noise = np.zeros(cfg.max_candidates, np.float32)
         self.cand_level = np.zeros(cfg.max_candidates, np.float32)
+        self.edge_ok = np.zeros(_PSF_STARS, np.bool_)
+        self.tail = NoiseTail(self.grid.index)
+        self.textured = np.zeros(grid_shape, np.bool_)
+        self.near_texture = np.zeros(grid_shape, np.bool_)
+        self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
+        self.surroundings = Surroundings(
+            layout.stride, int(math.ceil(_SKY_RING_SIGMAS * effective_sigma(SIGMA_MAX_PX)))
+            + _SKY_RING_WIDTH, cfg.max_candidates, _CHUNK)
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
-                         "sharp_spots": 0, "candidates": 0}
+                         "sharp_spots": 0, "masked": 0, "candidates": 0, "left_out": 0}
+        self._sigma_step = None
+        self._configure(cfg.psf_sigma_px)
+
+    def _configure(self, sigma_px: float) -> None:
+        """Set every PSF-dependent part for an optical PSF sigma of ``sigma_px``.
+
+        Sigma is rounded to steps of 3 % (a matched filter 3 % too wide or
+        narrow keeps 99.96 % of the SNR), and the parts are rebuilt only when
+        the PSF has moved more than one and a half steps from the one they
+        were built for: a PSF wandering by a few per cent from frame to
+        frame leaves the kernels, windows and their buffers as they are.
+        """
+        position = math.log(sigma_px) / _SIGMA_STEP
+        if self._sigma_step is not None and abs(position - self._sigma_step) <= 1.5:
+            return
+        step = int(round(position))
+        self._sigma_step = step
+        sigma_px = math.exp(step * _SIGMA_STEP)
+        self.psf_sigma_used = sigma_px
+        sigma = effective_sigma(sigma_px)
+        self.sigma = sigma
+        self.radius = _window_radius(sigma_px)
+        blend = 2 * self.radius if self.cfg.blend_radius_px is None else int(
+            self.cfg.blend_radius_px)
+        k = 2 * _kernel_half(sigma_px) + 1
+        self.ksize = (k, k)
+        kernel = cv2.getGaussianKernel(k, sigma, cv2.CV_64F).ravel()
+        # filtered / pixel noise for white noise: sqrt of the 2-D kernel's sum of squares
+        self.filter_gain = float(np.sum(kernel ** 2))
+        self.edge_gain = _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols)
+        self.peak_threshold = gaussian_peak_threshold(
+            self.cfg.false_alarms_per_frame, self.layout.rows * self.layout.cols, kernel)
+        self.tail.configure(kernel)
+        self.peaks.configure(blend)
+        self.centroider.configure(self.radius, sigma)
+        self.fit.configure(self.radius, sigma_px)
+        if self.cfg.centroid_noise == "multiplicative":
+            self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
+        self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
+        inner = int(math.ceil(_SKY_RING_SIGMAS * sigma))
+        self.surroundings.configure(inner, inner + _SKY_RING_WIDTH)
+        # halfway between an impulse's contrast over its 3x3 median and that of a centred
+        # star a tenth sharper than the PSF at its sharpest sub-pixel phase
+        self.impulse_contrast = 0.5 * (1.0 + psf_contrast(_IMPULSE_PSF_MARGIN * sigma_px,
+                                                          worst_phase=True))
+        self.point_roughness = _point_roughness(self.centroider, sigma_px)
 
     def _noise_f_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
         return self.grid.at(self.noise_f, flat, out)
@@ -193,22 +333,126 @@ class DefaultDetector:
         timer.start("impulses")
         self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
                                                self.limit_pad, self.impulse_limit))
+        timer.start("psf")
+        self.psf = self.psf_tracker.update(self._measure_psf() if self.cfg.psf_measure
+                                           else None)
+        self._configure(self.psf.sigma_px)
+        contrast = (self.cfg.impulse_contrast if self.cfg.impulse_contrast is not None
+                    else self.impulse_contrast)
+        self.counters.update(self.impulses.refine(self.input.padded, self.bg_pad,
+                                                  self.limit_pad, contrast))
+        self.tail.sample(self.input.padded, self.level, self.noise)
+        count = self._search()
+        for _ in range(_SECOND_LOOKS):
+            # too few bright stars for step 4: the centroided candidates measure the PSF,
+            # and a frame whose PSF is far from the one used is searched again with it
+            if not self.cfg.psf_measure or self.psf.stars > 0:
+                break
+            measured = self._psf_from_candidates()
+            if measured is None or abs(math.log(measured.sigma_px / self.psf_sigma_used)) < (
+                    _SECOND_LOOK_CHANGE):
+                break
+            self.psf = self.psf_tracker.update(measured)
+            self._configure(self.psf.sigma_px)
+            count = self._search()
+        timer.stop()
+        reason = (Reason.CROWDED if self.peaks.crowded
+                  else Reason.TOO_MANY if self.counters["left_out"] else None)
+        return self.table.result(count, reason, self.counters, timer.ms, self.psf)
+
+    def _search(self) -> int:
+        """Filter, threshold, peaks and centroids with the PSF configured; star count."""
+        timer, grid = self.timer, self.grid
         timer.start("filter")
         self.filter_slabs.rows(self._to_float)
         self.filter_slabs.run(self._matched_filter, self.work_float, self.filt)
         grid.stats(self.filt_pad, self.residual, self.noise_f,
                    QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=self.bg_pad)
-        self._skew_threshold(grid.skewness())
+        self._tail_threshold()
         self._make_threshold(1.0)
         timer.start("peaks")
         n = self.peaks.find(self.filt_pad, self.filt, self.threshold, self.bg_pad,
                             self._make_threshold, self._noise_f_at)
         self.counters["candidates"] = n
         timer.start("centroid")
-        count = self._measure(n)
-        timer.stop()
-        reason = Reason.CROWDED if self.peaks.crowded else None
-        return self.table.result(count, reason, self.counters, timer.ms)
+        return self._measure(n)
+
+    def _psf_from_candidates(self):
+        """The PSF from the centroided candidates' windowed moments (tracker.detect.psf).
+
+        For a Gaussian spot the moments under the window's Gaussian weight
+        give its covariance exactly (C = (M^-1 - I / w^2)^-1); the spots used
+        are significant (SNR >= 20), unsaturated, unblended and round enough.
+        Windows cut for a PSF much narrower than the stars' truncate them, so
+        a wide PSF is approached in a step or two.
+        """
+        n = self.counters["candidates"]
+        if n == 0:
+            return None
+        v = self.centroider.v
+        w2 = self.sigma ** 2
+        use = ((v["snr"][:n] >= _SECOND_LOOK_SNR) & (v["raw_peak"][:n] < self.saturation)
+               & ~self.peaks.blended[:n])
+        mxx, myy, mxy = v["mxx"][:n][use], v["myy"][:n][use], v["mxy"][:n][use]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            det = mxx * myy - mxy * mxy
+            a, b, c = myy / det - 1.0 / w2, mxx / det - 1.0 / w2, -mxy / det
+            det_c = a * b - c * c
+            sigma, ellipticity, _ = pixel_tensor_to_optics(b / det_c, a / det_c, -c / det_c)
+        good = (np.isfinite(sigma) & (ellipticity < 0.5) & (sigma >= SIGMA_MIN_PX)
+                & (sigma <= SIGMA_MAX_PX) & (det > 0) & (det_c > 0))
+        return combine_stars(sigma[good], ellipticity[good], (b / det_c)[good],
+                             (a / det_c)[good], (-c / det_c)[good], self.cfg.psf_min_stars)
+
+    def _measure_psf(self):
+        """This frame's PSF from its brightest stars (tracker.detect.psf), or None."""
+        self._bright_threshold(1.0)
+        n = self.bright.find(self.input.padded, self.input.work, self.bright_threshold,
+                             self.bg_pad, self._bright_threshold, self._noise_at)
+        if n == 0:
+            return None
+        cand, noise = self.bright.cand[:n], self.bright.cand_noise[:n]
+        # Hot pixels and one-pixel hits the first impulse pass left (it spares anything
+        # a sharp star could be) stand above their 3x3 median by nearly their whole
+        # height: they do not take the stars' places. The median is the impulse
+        # stage's, of the frame as it arrived.
+        value = self.psf_values[:n]
+        np.take(self.input.padded.ravel(), cand, out=self.psf_reads[:n], mode="clip")
+        np.copyto(value, self.psf_reads[:n])
+        np.take(self.impulses.median_pad.ravel(), cand, out=self.psf_reads[:n], mode="clip")
+        np.subtract(value, self.psf_reads[:n], out=self.psf_contrast[:n])
+        np.subtract(value, np.take(self.bg_pad.ravel(), cand, mode="clip"), out=value)
+        np.divide(self.psf_contrast[:n], np.maximum(value, 1e-6), out=self.psf_contrast[:n])
+        star = np.flatnonzero(self.psf_contrast[:n] < _PSF_IMPULSE_CONTRAST)[:_PSF_STARS]
+        m = len(star)
+        if m == 0:
+            return None
+        self.psf_cand[:m] = cand[star]
+        self.psf_noise[:m] = noise[star]
+        rows, cols = self.layout.frame_position(self.psf_cand[:m])
+        margin = int(math.ceil(_PSF_RING_SIGMAS * effective_sigma(self.psf.sigma_px))) + 1
+        h, w = self.input.shape
+        ok = self.edge_ok[:m]
+        np.greater_equal(rows, margin, out=ok)
+        ok &= (cols >= margin) & (rows < h - margin) & (cols < w - margin)
+        # under multiplicative noise the impulse filter clips the speckles of star cores:
+        # their shape is measured on the frame as delivered
+        frame = self.input.padded if self.speckle_fit is None else self.delivered_pad
+        return self.psf_meter.measure(m, frame, self.bg_pad, self.psf_cand, self.psf_noise,
+                                      self.saturation, self.psf.sigma_px, ok)
+
+    def _bright_threshold(self, factor: float = 1.0) -> None:
+        """The PSF stage's threshold (uint16): background + factor * psf_min_peak_sigma *
+        pixel noise, in whole ADU."""
+        np.multiply(self.noise, factor * self.cfg.psf_min_peak_sigma, out=self.float_grid)
+        np.add(self.float_grid, self.level, out=self.float_grid)
+        np.clip(self.float_grid, 0.0, 65535.0, out=self.float_grid)
+        np.rint(self.float_grid, out=self.float_grid)
+        np.copyto(self.int_grid, self.float_grid, casting="unsafe")
+        self.grid.upsample(self.int_grid, self.bright_threshold)
+
+    def _noise_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
+        return self.grid.at(self.noise, flat, out)
 
     def _to_float(self, a: int, b: int) -> None:
         np.copyto(self.work_float[a:b], self.input.work[a:b])
@@ -216,18 +460,20 @@ class DefaultDetector:
     def _matched_filter(self, src: np.ndarray, dst: np.ndarray) -> None:
         cv2.GaussianBlur(src, self.ksize, self.sigma, dst=dst, borderType=cv2.BORDER_REFLECT)
 
-    def _skew_threshold(self, skewness: float) -> None:
-        """threshold_k: threshold_sigma moved to the same tail probability for skewed noise.
+    def _tail_threshold(self) -> None:
+        """threshold_k for this frame (tracker.detect.threshold).
 
-        Cornish-Fisher: the z quantile of a distribution of skewness g sits
-        near z + g (z^2 - 1) / 6 standard deviations. Photon noise of a few
-        counts per pixel is skewed even after the matched filter (and a
-        Gaussian 6-sigma cut lets its clumps through); Gaussian noise (g about
-        0) keeps threshold_sigma. ``skewness``: of the filtered background.
+        The Gaussian level of the false-alarm budget (or ``threshold_sigma``
+        if set), moved to the same tail probability for the frame's own
+        noise distribution: by the saddlepoint of its background pixels, or,
+        when too few tiles are free of stars for that, by Cornish-Fisher
+        from the filtered background's skewness.
         """
-        z = float(self.cfg.threshold_sigma)
-        g = max(0.0, skewness)
-        self.threshold_k = z + g * (z * z - 1.0) / 6.0
+        u = (self.peak_threshold if self.cfg.threshold_sigma is None
+             else float(self.cfg.threshold_sigma))
+        k = self.tail.threshold(u, self.noise_f, self.filter_gain)
+        self.threshold_k = max(u, k) if k is not None else skewed_threshold(
+            u, self.grid.skewness())
 
     def _make_threshold(self, factor: float) -> None:
         """Threshold image: background + level left + factor * threshold_k * noise."""
@@ -262,12 +508,13 @@ class DefaultDetector:
         noise, level = self.cand_noise[:n], self.cand_level[:n]
         self.grid.at(self.noise, cand, noise)
         self.grid.at(self.residual, cand, level)
-        v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level)
+        v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level,
+                                    self.saturation, self.peaks.blended[:n])
         if self.speckle_fit is not None:  # its likelihood handles saturated stars too
             merged = self.centroider.refine_multiplicative(
-                n, self.speckle_fit, self.delivered_pad, self.bg_pad, level, 2.0 * self.sigma)
+                n, self.speckle_fit, cand, self.delivered_pad, self.bg_pad, level,
+                2.0 * self.sigma)
         else:
-            self.centroider.refine_clipped(n, self.saturation, self.sigma, noise)
             merged = False
         # Shape tests against the PSF, for spots bright enough to measure; under
         # multiplicative noise a star's own pixels are spiky, so none applies.
@@ -278,12 +525,26 @@ class DefaultDetector:
         # rejection leaves of a track) count as narrow.
         narrowest = 0.5 * v["size"] * (1.0 - v["ellipticity"])
         spot = (v["weighted"] > 0) & (v["size"] > 0) & (v["ellipticity"] <= 1.0)
-        sharp = judged & (
-            ~spot | (narrowest < self.cfg.sharp_size_ratio * 0.5 * self.expected_size))
+        width = narrowest / (0.5 * self.expected_size)     # 1 for a star of this PSF
+        # a line narrower than the PSF (a track; a trailed star keeps the PSF's width)
+        track = (width < _TRACK_WIDTH) & (v["ellipticity"] > _TRACK_ELLIPTICITY)
+        narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
+        star_like = judged & spot & (np.abs(np.log(np.maximum(width, 1e-6))) < _STAR_WIDTH) & (
+            v["ellipticity"] < _STAR_ELLIPTICITY)
+        sharp = judged & (narrow | self._rough(v, star_like))
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
-        keep = np.flatnonzero(~(sharp | merged))[: self.table.capacity]
+        broad, body = self._broad(v, sharp)
+        embedded = self._embedded(n, cand, v) & ~sharp
+        masked = (body | embedded) & ~sharp
+        self.counters["masked"] = int(np.count_nonzero(masked))
+        keep = np.flatnonzero(~(sharp | merged | masked))
+        # most significant first: a bright bump in a noisy patch (glare, foliage) ranks
+        # below a star of the same height on dark sky
+        keep = keep[np.argsort(-v["snr"][keep], kind="stable")]
+        self.counters["left_out"] = max(0, len(keep) - self.table.capacity)
+        keep = keep[: self.table.capacity]
         count = len(keep)
         rows, cols = self.layout.frame_position(cand[keep])
         s = self.table.stars
@@ -301,23 +562,80 @@ class DefaultDetector:
         flags[(v["ellipticity"][keep] > self.cfg.elongation_max)
               & judged[keep]] |= StarFlag.ELONGATED
         flags[self.peaks.blended[:n][keep]] |= StarFlag.BLENDED
-        self._flag_extended(s[:count], flags)
+        flags[broad[keep]] |= StarFlag.EXTENDED
         s["flags"][:count] = flags
         return count
 
-    def _flag_extended(self, stars: np.ndarray, flags: np.ndarray) -> None:
-        """EXTENDED: effective area flux/peak above ``extended_ratio`` x the frame's median.
+    def _rough(self, v: dict, star_like: np.ndarray) -> np.ndarray:
+        """Spots rougher at the pixel scale than any image of the sky (tracker.detect.windowed).
 
-        A point source's flux/peak is fixed by the PSF (2 pi sigma^2 for a
-        Gaussian) whatever its brightness; a nebula, comet or lit branch
-        spreads its flux wider. The frame's own median is the reference, so
-        an unknown or field-varying PSF needs no configuration. Saturated
-        stars (flat tops) are neither judged nor part of the median; fewer
-        than five unsaturated sources give no reference.
+        Clusters of cosmic-ray hits and touching impulses, which the second
+        moment does not catch when they are as wide as the PSF. The reference
+        is a point source's roughness under the frame's PSF, or, if higher,
+        the median of the frame's bright spots that look like its stars
+        (``star_like``: width within 25 % of the PSF's, round): noise that
+        scales with the light, such as speckle, roughens every star alike,
+        and a star is not rejected for it, while cosmic-ray spots, narrower
+        or elongated, do not set the reference.
         """
-        unsat = (flags & StarFlag.SATURATED) == 0
+        reference = self.point_roughness
+        bright = star_like & (v["snr"] >= _ROUGH_REFERENCE_SNR)
+        if np.count_nonzero(bright) >= 5:
+            reference = max(reference, float(np.median(v["rough"][bright])))
+        return v["rough"] > self.cfg.rough_ratio * reference
+
+    def _broad(self, v: dict, sharp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(EXTENDED, body): flux/peak above ``extended_ratio`` / ``body_ratio`` x the median.
+
+        A point source's flux/peak (its effective area) is fixed by the PSF
+        (2 pi sigma^2 for a Gaussian) whatever its brightness; a nebula,
+        comet or lit branch spreads its flux wider (EXTENDED, reported), and
+        a maximum on a ghost's disc, a planet or lit ground is as wide as the
+        window itself (a body: masked). The frame's own median is the
+        reference, so an unknown or field-varying PSF needs no configuration.
+        Saturated spots (flat tops) and rejected sharp ones are neither
+        judged nor part of the median; fewer than five such sources give no
+        reference.
+        """
+        n = len(sharp)
+        unsat = (v["raw_peak"] < self.saturation) & ~sharp
+        none = np.zeros(n, bool)
         if np.count_nonzero(unsat) < 5:
-            return
-        area = stars["flux"] / np.maximum(stars["peak"], 1e-12)
-        broad = unsat & (area > self.cfg.extended_ratio * np.median(area[unsat]))
-        flags[broad] |= StarFlag.EXTENDED
+            return none, none
+        area = v["flux"] / np.maximum(v["peak"], 1e-12)
+        reference = float(np.median(area[unsat]))
+        return (unsat & (area > self.cfg.extended_ratio * reference),
+                unsat & (area > self.cfg.body_ratio * reference))
+
+    def _embedded(self, n: int, cand: np.ndarray, v: dict) -> np.ndarray:
+        """Candidates with fewer than ``min_sky_sectors`` sky sectors around them
+        (tracker.detect.surroundings)."""
+        if self.cfg.min_sky_sectors == 0:
+            return np.zeros(n, bool)
+        level0, var0, slope = sky_noise_model(self.level, self.noise, self.saturation)
+        bg = self.cand_level[:n]                    # scratch: the background at each
+        np.take(self.bg_pad.ravel(), cand, out=bg, mode="clip")
+        sky = self.cand_noise[:n]                   # scratch from here on
+        np.subtract(bg, level0, out=sky)
+        np.maximum(sky, 0.0, out=sky)
+        np.multiply(sky, slope, out=sky)
+        np.add(sky, var0, out=sky)
+        np.sqrt(sky, out=sky)
+        sectors = self.surroundings.sky_sectors_of(n, self.input.padded, self.bg_pad, cand,
+                                                   sky, v["peak"])
+        # in or beside a textured tile (its noise well above the smooth sky's at its level)
+        # a candidate must have sky on most sides: the edge of lit terrain or foliage is
+        # ragged, and its twigs and boulders have sky on one side
+        np.subtract(self.level, level0, out=self.float_grid)
+        np.maximum(self.float_grid, 0.0, out=self.float_grid)
+        np.multiply(self.float_grid, slope, out=self.float_grid)
+        np.add(self.float_grid, var0, out=self.float_grid)
+        np.multiply(self.float_grid, _TEXTURE_NOISE ** 2, out=self.float_grid)
+        np.greater(np.square(self.noise), self.float_grid, out=self.textured)
+        cv2.dilate(self.textured.view(np.uint8), _TILE_NEIGHBOURS,
+                   dst=self.near_texture.view(np.uint8))
+        near = self.cand_near[:n]
+        self.grid.at(self.near_texture.view(np.uint8), cand, near)
+        need = np.where(near > 0, max(self.cfg.min_sky_sectors, _TEXTURED_SKY_SECTORS),
+                        self.cfg.min_sky_sectors)
+        return sectors < need
