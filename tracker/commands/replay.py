@@ -14,6 +14,7 @@ from pathlib import Path
 
 from tracker.capture import FrameError, ReplaySource
 from tracker.commands.progress import Progress
+from tracker.detect.psf import FWHM_PER_SIGMA
 from tracker.overlay import write_overlay
 from tracker.pipeline import FrameResult, Pipeline
 
@@ -60,6 +61,11 @@ def frame_record(name: str, result: FrameResult) -> dict:
         record["solve_reason"] = result.solve_reason
     if det.counters:
         record["rejected"] = {k: int(v) for k, v in det.counters.items()}
+    if det.psf_sigma_px is not None:
+        record["psf"] = {"sigma_px": round(det.psf_sigma_px, 4),
+                         "fwhm_px": round(det.psf_sigma_px * FWHM_PER_SIGMA, 4),
+                         "ellipticity": round(det.psf_ellipticity, 4),
+                         "angle_deg": round(det.psf_angle_deg, 2), "stars": det.psf_stars}
     return record
 
 

@@ -33,6 +33,7 @@ QUANTISATION_NOISE_ADU = float(np.sqrt(1.0 / 12.0))
 _MEAN_ABS_IN_IQR = 0.3247  # E|z| for a standard normal z restricted to its middle half
 _ONE_SIGMA_ABOVE = 0.84134  # fraction of a Gaussian below mean + sigma
 _TRIM_FRACTION = 1.0 / 16.0  # trimmed noise: drop this fraction of samples at each end
+_DECILES_10_30 = 0.7573   # distance from a Gaussian's 10th to its 30th percentile, in sigma
 
 
 def _truncated_normal_std(p: float) -> float:
@@ -102,12 +103,18 @@ class BackgroundGrid:
         self.tile_scratch = np.zeros(int(capacity), np.int32)
 
     def stats(self, padded: np.ndarray, level: np.ndarray, noise: np.ndarray,
-              floor: float, upper: bool = False, minus: np.ndarray | None = None) -> None:
+              floor: float, upper: bool = False, minus: np.ndarray | None = None,
+              dark_side: np.ndarray | None = None) -> None:
         """Per-tile level and noise (grid shape, units of ``padded``) into the given arrays.
 
         ``padded`` is float32 or uint16. With ``minus`` (float32, padded like
         ``padded``) the statistics are those of ``padded - minus``, computed
-        on the sampled pixels only.
+        on the sampled pixels only. Tiles marked in ``dark_side`` (bool, grid
+        shape) take both from the darker part of their samples (the 6th to
+        37th percentile: level their mean, noise the 10th-30th percentile
+        distance over 0.757, its value for a Gaussian): a tile across a
+        horizon or the edge of glare then has the sky's level and noise,
+        not a blend of sky and ground.
 
         With ``upper`` the noise is also at least the distance from the level
         up to the 84.13th percentile, and at least the standard deviation of
@@ -129,6 +136,9 @@ class BackgroundGrid:
             np.subtract(self.samples, self.minus_samples, out=self.samples)
         self.samples.sort(axis=-1)
         np.mean(self.middle, axis=-1, out=self.level_raw)
+        if dark_side is not None and np.any(dark_side):
+            dark = self.samples[dark_side]
+            self.level_raw[dark_side] = dark[:, m // 16: 3 * m // 8].mean(axis=-1)
         self._smooth(self.level_raw, level)
         np.subtract(self.middle, self.level_raw[..., None], out=self.deviation)
         np.abs(self.deviation, out=self.deviation)
@@ -147,8 +157,17 @@ class BackgroundGrid:
             np.sqrt(self.moment2, out=self.upper)
             np.multiply(self.upper, 1.0 / self._trimmed_std, out=self.upper)
             np.maximum(self.raw, self.upper, out=self.raw)
+        if dark_side is not None and np.any(dark_side):
+            self._dark_side(dark_side)
         np.maximum(self.raw, floor, out=self.raw)
         self._smooth(self.raw, noise)
+
+    def _dark_side(self, dark_side: np.ndarray) -> None:
+        """Noise of the marked tiles from their 10th-30th percentile samples."""
+        m = self.samples.shape[-1]
+        dark = self.samples[dark_side]
+        spread = dark[:, int(round(0.3 * (m - 1)))] - dark[:, int(round(0.1 * (m - 1)))]
+        self.raw[dark_side] = spread / _DECILES_10_30
 
     def skewness(self, star_free_sigma: float = 5.0, min_fraction: float = 0.5) -> float:
         """Median skewness of the star-free tiles of the last :meth:`stats` call (``upper``).

@@ -117,6 +117,7 @@ _SKY_RING_WIDTH = 2            # ... outward by this many pixels
 _TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is textured,
 _TEXTURED_SKY_SECTORS = 6      # ... and its candidates need this many sky sectors
 _TILE_NEIGHBOURS = np.ones((3, 3), np.uint8)
+_DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part holds an edge
 
 
 def effective_sigma(psf_sigma_px: float) -> float:
@@ -250,6 +251,7 @@ class DefaultDetector:
         self.edge_ok = np.zeros(_PSF_STARS, np.bool_)
         self.tail = NoiseTail(self.grid.index)
         self.textured = np.zeros(grid_shape, np.bool_)
+        self.dark_side = np.zeros(grid_shape, np.bool_)
         self.near_texture = np.zeros(grid_shape, np.bool_)
         self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
         self.surroundings = Surroundings(
@@ -324,6 +326,9 @@ class DefaultDetector:
         grid = self.grid
         grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
                    upper=True)
+        if self._mark_dark_side():
+            grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
+                       upper=True, dark_side=self.dark_side)
         grid.upsample(self.level, self.bg)
         np.multiply(self.noise, self.cfg.impulse_sigma, out=self.float_grid)
         np.clip(self.float_grid, 0.0, 65535.0, out=self.float_grid)
@@ -360,6 +365,25 @@ class DefaultDetector:
                   else Reason.TOO_MANY if self.counters["left_out"] else None)
         return self.table.result(count, reason, self.counters, timer.ms, self.psf)
 
+    def _mark_dark_side(self) -> bool:
+        """Mark the tiles that straddle the edge of a bright body; whether there are any.
+
+        Such a tile is far brighter (in its interquartile mean) than the
+        frame's sky, by more than ten times the sky's noise, while its darker
+        part (6th-37th percentile) is within that of the sky around it: sky
+        and ground (or glare) in one tile. Its statistics then come from the
+        darker part (tracker.detect.background), so the stars on the sky side
+        meet the sky's background and threshold.
+        """
+        level0, var0, slope = sky_noise_model(self.level, self.noise, self.saturation)
+        grid = self.grid
+        m = grid.samples.shape[-1]
+        dark = grid.samples[..., m // 16: 3 * m // 8].mean(axis=-1)
+        sky_noise = np.sqrt(var0 + slope * np.maximum(dark - level0, 0.0))
+        np.logical_and(grid.level_raw - dark > _DARK_SIDE_SIGMAS * sky_noise,
+                       grid.level_raw < 0.9 * self.saturation, out=self.dark_side)
+        return bool(self.dark_side.any())
+
     def _search(self) -> int:
         """Filter, threshold, peaks and centroids with the PSF configured; star count."""
         timer, grid = self.timer, self.grid
@@ -367,7 +391,8 @@ class DefaultDetector:
         self.filter_slabs.rows(self._to_float)
         self.filter_slabs.run(self._matched_filter, self.work_float, self.filt)
         grid.stats(self.filt_pad, self.residual, self.noise_f,
-                   QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=self.bg_pad)
+                   QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=self.bg_pad,
+                   dark_side=self.dark_side if self.dark_side.any() else None)
         self._tail_threshold()
         self._make_threshold(1.0)
         timer.start("peaks")

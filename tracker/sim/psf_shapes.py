@@ -35,7 +35,7 @@ import numpy as np
 
 from tracker.sim.psf import Stamps, stamp_box
 
-__all__ = ["PsfShape", "SHAPES", "shaped_stamps", "bessel_j1", "FWHM_PER_SIGMA"]
+__all__ = ["PsfShape", "SHAPES", "shaped_stamps", "bessel_j1", "FWHM_PER_SIGMA", "shape_model"]
 
 SHAPES = ("gaussian", "moffat", "airy")
 FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
@@ -136,3 +136,25 @@ def shaped_stamps(xs: np.ndarray, ys: np.ndarray, psf: PsfShape) -> Stamps:
             values[part] += dens.reshape(n, ky, ss, kx, ss).mean(axis=(2, 4))
     values /= xs.shape[1]
     return Stamps(x0=x0, y0=y0, values=values)
+
+
+def shape_model(psf: PsfShape, step_px: float = 0.01):
+    """``psf`` as tracker.detect.crb's model: light fractions on a box and their derivatives
+    by the star's position (central differences of ``step_px``), by supersampling."""
+
+    def model(x, y, x0, y0, size):
+        def box(xs, ys):
+            st = shaped_stamps(xs, ys, psf)
+            out = np.zeros((len(xs), size, size))
+            for i in range(len(xs)):
+                ky, kx = st.values[i].shape
+                r0, c0 = int(st.y0[i] - y0[i]), int(st.x0[i] - x0[i])
+                rows = slice(max(r0, 0), min(r0 + ky, size))
+                cols = slice(max(c0, 0), min(c0 + kx, size))
+                out[i, rows, cols] = st.values[i][rows.start - r0:rows.stop - r0,
+                                                  cols.start - c0:cols.stop - c0]
+            return out
+        h = step_px
+        return (box(x, y), (box(x + h, y) - box(x - h, y)) / (2 * h),
+                (box(x, y + h) - box(x, y - h)) / (2 * h))
+    return model
