@@ -49,7 +49,7 @@ def test_noise_free_stars_are_centred_at_every_sub_pixel_phase(sigma):
                           noise_model="none", psf_sigma_px=sigma)
     result = make_detector(CFG, shape, 10).detect(frame.image)
     assert result.psf_sigma_px == pytest.approx(sigma, rel=0.01)
-    assert result.psf_stars >= 50
+    assert result.psf_stars >= 40             # of the 48 brightest it looks at
     d = np.hypot(xs[:, None] - result.stars["x"][None, :], ys[:, None] - result.stars["y"][None, :])
     assert result.count == len(xs)
     assert d.min(axis=1).max() < 0.01

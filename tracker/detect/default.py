@@ -96,8 +96,9 @@ from tracker.timing import StageTimer
 __all__ = ["DefaultDetector", "effective_sigma"]
 
 _SIGMA_STEP = math.log(1.03)   # PSF sigmas are used in steps of 3 %
-_PSF_STARS = 96                # brightest stars examined for the PSF ...
+_PSF_STARS = 48                # brightest stars examined for the PSF ...
 _PSF_PEAKS = 512               # ... among this many brightest peaks, impulses set aside
+_PSF_POOL = 8192               # spared impulse candidates looked at for those peaks
 _PSF_IMPULSE_CONTRAST = 0.95   # a peak this far above its 3x3 median is an impulse
 _PSF_PIXELS = 32768            # pixels above the PSF stage's threshold examined
 _PSF_RING_SIGMAS = 4.5         # tracker.detect.psf's isolation ring reaches this far
@@ -118,6 +119,7 @@ _TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is
 _TEXTURED_SKY_SECTORS = 6      # ... and its candidates need this many sky sectors
 _TILE_NEIGHBOURS = np.ones((3, 3), np.uint8)
 _DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part holds an edge
+_TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its tail modelled
 
 
 def effective_sigma(psf_sigma_px: float) -> float:
@@ -230,6 +232,11 @@ class DefaultDetector:
         self.psf_values = np.zeros(_PSF_PEAKS, np.float32)
         self.psf_reads = np.zeros(_PSF_PEAKS, np.uint16)
         self.psf_contrast = np.zeros(_PSF_PEAKS, np.float32)
+        self.pool_height = np.zeros(_PSF_POOL, np.float32)
+        self.pool_reads = np.zeros(_PSF_POOL, np.uint16)
+        self.pool_noise = np.zeros(_PSF_POOL, np.float32)
+        self.pool_cand = np.zeros(_PSF_PEAKS, np.intp)
+        self.pool_cand_noise = np.zeros(_PSF_PEAKS, np.float32)
         self.psf_cand = np.zeros(_PSF_STARS, np.intp)
         self.psf_noise = np.zeros(_PSF_STARS, np.float32)
         self.psf_meter = PsfMeter(layout.stride, psf_radius, _PSF_STARS, cfg.psf_min_stars)
@@ -346,7 +353,6 @@ class DefaultDetector:
                     else self.impulse_contrast)
         self.counters.update(self.impulses.refine(self.input.padded, self.bg_pad,
                                                   self.limit_pad, contrast))
-        self.tail.sample(self.input.padded, self.level, self.noise)
         count = self._search()
         for _ in range(_SECOND_LOOKS):
             # too few bright stars for step 4: the centroided candidates measure the PSF,
@@ -429,14 +435,41 @@ class DefaultDetector:
         return combine_stars(sigma[good], ellipticity[good], (b / det_c)[good],
                              (a / det_c)[good], (-c / det_c)[good], self.cfg.psf_min_stars)
 
+    def _bright_peaks(self) -> tuple[np.ndarray, np.ndarray]:
+        """The brightest local maxima (padded flat indices, pixel noise), brightest first.
+
+        From the impulse stage's spared candidates when it kept a list (no
+        further pass over the frame), else by a threshold search of the frame
+        (tracker.detect.peaks); at least ``psf_min_peak_sigma`` pixel noise
+        above the background, at most ``_PSF_PEAKS`` of them.
+        """
+        spared = self.impulses.spared_maxima(self.input.padded, self.bg_pad)
+        if spared is None:
+            self._bright_threshold(1.0)
+            n = self.bright.find(self.input.padded, self.input.work, self.bright_threshold,
+                                 self.bg_pad, self._bright_threshold, self._noise_at)
+            return self.bright.cand[:n], self.bright.cand_noise[:n]
+        m = min(len(spared), _PSF_POOL)
+        spared = spared[:m]
+        height = self.pool_height[:m]
+        np.take(self.input.padded.ravel(), spared, out=self.pool_reads[:m], mode="clip")
+        np.copyto(height, self.pool_reads[:m])
+        np.subtract(height, np.take(self.bg_pad.ravel(), spared, mode="clip"), out=height)
+        noise = self.pool_noise[:m]
+        self.grid.at(self.noise, spared, noise)
+        bright = np.flatnonzero(height > self.cfg.psf_min_peak_sigma * noise)
+        order = bright[np.argsort(-height[bright], kind="stable")][:_PSF_PEAKS]
+        k = len(order)
+        self.pool_cand[:k] = spared[order]
+        self.pool_cand_noise[:k] = noise[order]
+        return self.pool_cand[:k], self.pool_cand_noise[:k]
+
     def _measure_psf(self):
         """This frame's PSF from its brightest stars (tracker.detect.psf), or None."""
-        self._bright_threshold(1.0)
-        n = self.bright.find(self.input.padded, self.input.work, self.bright_threshold,
-                             self.bg_pad, self._bright_threshold, self._noise_at)
+        cand, noise = self._bright_peaks()
+        n = len(cand)
         if n == 0:
             return None
-        cand, noise = self.bright.cand[:n], self.bright.cand_noise[:n]
         # Hot pixels and one-pixel hits the first impulse pass left (it spares anything
         # a sharp star could be) stand above their 3x3 median by nearly their whole
         # height: they do not take the stars' places. The median is the impulse
@@ -496,9 +529,12 @@ class DefaultDetector:
         """
         u = (self.peak_threshold if self.cfg.threshold_sigma is None
              else float(self.cfg.threshold_sigma))
-        k = self.tail.threshold(u, self.noise_f, self.filter_gain)
-        self.threshold_k = max(u, k) if k is not None else skewed_threshold(
-            u, self.grid.skewness())
+        skewness = self.grid.skewness()
+        k = None
+        if skewness > _TAIL_SKEWNESS:   # noise near Gaussian needs no histogram
+            self.tail.sample(self.input.padded, self.level, self.noise)
+            k = self.tail.threshold(u, self.noise_f, self.filter_gain)
+        self.threshold_k = max(u, k) if k is not None else skewed_threshold(u, skewness)
 
     def _make_threshold(self, factor: float) -> None:
         """Threshold image: background + level left + factor * threshold_k * noise."""

@@ -40,7 +40,7 @@ _MIN_VAR = 1e-6
 class PixelGaussianFit:
     """Fits flux and centre of a pixel-integrated Gaussian to square windows."""
 
-    def __init__(self, chunk: int, max_side: int, iterations: int = 5) -> None:
+    def __init__(self, chunk: int, max_side: int, iterations: int = 3) -> None:
         self.chunk = int(chunk)
         self.max_side = int(max_side)
         self.iterations = int(iterations)

@@ -129,6 +129,7 @@ class ImpulseFilter:
                                         for dx in (-1, 0, 1)], np.intp)
         self.window_values = np.zeros((self.capacity, 9), dtype)
         self.replaced = np.zeros(self.capacity, np.bool_)
+        self._dense = False
         self.flags = np.zeros(self.capacity, np.bool_)
         self.tmp_flags = np.zeros(self.capacity, np.bool_)
         # growing and clearing tracks: up to 9 pixels around each candidate
@@ -157,12 +158,14 @@ class ImpulseFilter:
         for key in counts:
             counts[key] = 0
         self._n = 0
+        self._dense = False
         self.slabs.run(_median3, work, self.median)
         self.slabs.rows(lambda a, b: self._first_cut(work[a:b], limit[a:b], a, b))
         n = self.layout.nonzero(self.mask_pad, self.index)
         if n == 0:
             return counts
         if n > self.capacity:
+            self._dense = True
             imp = _impulse_test(work_pad, self.median_pad, bg_pad, limit_pad, self.contrast,
                                 self.dense, work_pad.shape[0])
             np.copyto(work_pad, self.median_pad, where=imp)
@@ -170,6 +173,32 @@ class ImpulseFilter:
             return counts
         self._sparse(n, work_pad, bg_pad, limit_pad)
         return counts
+
+    def spared_maxima(self, work_pad: np.ndarray, bg_pad: np.ndarray) -> np.ndarray | None:
+        """Padded flat indices of the last :meth:`run`'s candidates it did not replace that
+        are local maxima of ``work_pad`` (not below any of their eight neighbours), or None
+        after a whole-frame pass (no list was kept).
+
+        A star's peak stands above its 3x3 median by more than the limit once it is a
+        few times the noise, and the contrast test spares it: the bright stars of a
+        frame are among these, found without another pass over the frame.
+        """
+        if self._dense:
+            return None
+        n = self._n
+        if n == 0:
+            return self.index[:0]
+        idx = self.index[:n]
+        flat = work_pad.ravel()
+        nb_index = self.neighbour_index[:n]
+        np.add(idx[:, None], self.neighbour_offsets[None, :], out=nb_index)
+        np.take(flat, nb_index, out=self.window_values[:n, :8], mode="clip")
+        np.max(self.window_values[:n, :8], axis=1, out=self.reads[:n])
+        np.take(flat, idx, out=self.window_values[:n, 8], mode="clip")
+        peak = self.flags[:n]
+        np.greater_equal(self.window_values[:n, 8], self.reads[:n], out=peak)
+        np.logical_and(peak, ~self.replaced[:n], out=peak)
+        return np.compress(peak, idx)
 
     def refine(self, work_pad: np.ndarray, bg_pad: np.ndarray, limit_pad: np.ndarray,
                contrast: float) -> dict:
