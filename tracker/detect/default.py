@@ -108,6 +108,9 @@ _STAR_WIDTH = math.log(1.25)   # ... if their width is within 25 % of the PSF's
 _STAR_ELLIPTICITY = 0.2        # ... and they are round
 _TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
 _TRACK_ELLIPTICITY = 0.3       # ... this elongated is a particle's track
+_REMNANT_WIDTH = 0.85          # a spot this narrow and ...
+_REMNANT_ROUGH = 3.0           # ... this rough (x a point source's) is a track's remnant
+_SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
 _FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
 _SECOND_LOOKS = 2              # searches again with a PSF measured on the candidates
@@ -587,18 +590,23 @@ class DefaultDetector:
         narrowest = 0.5 * v["size"] * (1.0 - v["ellipticity"])
         spot = (v["weighted"] > 0) & (v["size"] > 0) & (v["ellipticity"] <= 1.0)
         width = narrowest / (0.5 * self.expected_size)     # 1 for a star of this PSF
-        # a line narrower than the PSF (a track; a trailed star keeps the PSF's width)
-        track = (width < _TRACK_WIDTH) & (v["ellipticity"] > _TRACK_ELLIPTICITY)
-        narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
         star_like = judged & spot & (np.abs(np.log(np.maximum(width, 1e-6))) < _STAR_WIDTH) & (
             v["ellipticity"] < _STAR_ELLIPTICITY)
-        sharp = judged & (narrow | self._rough(v, star_like))
+        rough = v["rough"] / self._roughness_reference(v, star_like)
+        # a line narrower than the PSF (a track; a trailed star keeps the PSF's width), or
+        # a narrow spot rough at the pixel scale (a track's remnant)
+        track = ((width < _TRACK_WIDTH) & (v["ellipticity"] > _TRACK_ELLIPTICITY)) | (
+            (width < _REMNANT_WIDTH) & (rough > _REMNANT_ROUGH))
+        narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
+        sharp = judged & (narrow | (rough > self.cfg.rough_ratio))
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
         broad, body = self._broad(v, sharp)
         embedded = self._embedded(n, cand, v) & ~sharp
-        masked = (body | embedded) & ~sharp
+        # a broad maximum with a body on some side is part of it (a ghost's rim)
+        on_body = broad & (self.surroundings.sky_sectors[:n] < _TEXTURED_SKY_SECTORS)
+        masked = (body | embedded | on_body) & ~sharp
         self.counters["masked"] = int(np.count_nonzero(masked))
         keep = np.flatnonzero(~(sharp | merged | masked))
         # most significant first: a bright bump in a noisy patch (glare, foliage) ranks
@@ -627,23 +635,22 @@ class DefaultDetector:
         s["flags"][:count] = flags
         return count
 
-    def _rough(self, v: dict, star_like: np.ndarray) -> np.ndarray:
-        """Spots rougher at the pixel scale than any image of the sky (tracker.detect.windowed).
+    def _roughness_reference(self, v: dict, star_like: np.ndarray) -> float:
+        """What a star's pixel-scale roughness is in this frame (tracker.detect.windowed).
 
-        Clusters of cosmic-ray hits and touching impulses, which the second
-        moment does not catch when they are as wide as the PSF. The reference
-        is a point source's roughness under the frame's PSF, or, if higher,
-        the median of the frame's bright spots that look like its stars
-        (``star_like``: width within 25 % of the PSF's, round): noise that
-        scales with the light, such as speckle, roughens every star alike,
-        and a star is not rejected for it, while cosmic-ray spots, narrower
-        or elongated, do not set the reference.
+        A point source's under the frame's PSF, or, if higher, the median of
+        the frame's bright spots that look like its stars (``star_like``:
+        width within 25 % of the PSF's, round): noise that scales with the
+        light (speckle, a fraction of a photon per pixel) roughens every star
+        alike, and a star is not rejected for it, while cosmic-ray clusters,
+        narrower or elongated, do not set the reference. Spots far rougher
+        than it (clusters of hits, touching impulses) are rejected.
         """
         reference = self.point_roughness
         bright = star_like & (v["snr"] >= _ROUGH_REFERENCE_SNR)
         if np.count_nonzero(bright) >= 5:
             reference = max(reference, float(np.median(v["rough"][bright])))
-        return v["rough"] > self.cfg.rough_ratio * reference
+        return reference
 
     def _broad(self, v: dict, sharp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(EXTENDED, body): flux/peak above ``extended_ratio`` / ``body_ratio`` x the median.
@@ -693,6 +700,7 @@ class DefaultDetector:
         np.add(self.float_grid, var0, out=self.float_grid)
         np.multiply(self.float_grid, _TEXTURE_NOISE ** 2, out=self.float_grid)
         np.greater(np.square(self.noise), self.float_grid, out=self.textured)
+        self.textured |= self.level >= _SATURATED_TILE * self.saturation   # flat, but ground
         cv2.dilate(self.textured.view(np.uint8), _TILE_NEIGHBOURS,
                    dst=self.near_texture.view(np.uint8))
         near = self.cand_near[:n]

@@ -47,6 +47,8 @@ SIM_STAR_DTYPE = np.dtype([
     ("mf_snr", np.float64),   # expected matched-filter SNR
     ("in_frame", np.bool_),   # centre inside the image (else it only spills light in)
     ("saturated", np.bool_),  # its expected peak pixel reaches the full scale
+    ("bg_power", np.float64),  # noise power of its peak pixel without its own light (sensor
+                               # models: e-^2 of sky, dark, scene light, read, rounding)
 ])
 
 _HOT_PIXEL_SIGMAS = 5.0  # hot pixels listed as false sources: dark charge >= 5 read noise
@@ -206,6 +208,9 @@ def render_points(shape: tuple[int, int], xs, ys, electrons, sim_cfg: SimConfig,
     else:
         power = values + (own if model == "realistic" else 0.0)
     stars["peak_snr"], stars["mf_snr"], peak = _star_snrs(own, power, inside)
+    if len(own):
+        at_peak = np.argmax(np.where(inside, own, -1.0).reshape(len(own), -1), axis=1)
+        stars["bg_power"] = values.reshape(len(own), -1)[np.arange(len(own)), at_peak]
     stars["saturated"] = peak >= info.pop("full_scale")
     truth = {
         "frame": None, "seed": sim_cfg.seed, "bit_depth": depth, "psf_sigma_px": sigma,
@@ -274,6 +279,7 @@ def _sensor_frame(signal: np.ndarray, model: str, sim_cfg: SimConfig,
     exposure_s = sim_cfg.exposure_ms / 1000.0
     quant = scale.gain_e_per_adu ** 2 / 12.0
     info = {"gain_e_per_adu": scale.gain_e_per_adu, "bias_adu": scale.bias_adu,
+            "full_well_e": sim_cfg.full_well_e,
             "full_scale": min(sim_cfg.full_well_e,
                               (scale.max_adu - scale.bias_adu) * scale.gain_e_per_adu)}
     if model == "none":
