@@ -61,9 +61,9 @@ def test_aperture_flux_of_the_peers_sums_a_star_over_its_local_background():
     from tracker.bench.detect_solve import aperture_flux
 
     sim = dataclasses.replace(SimConfig(), hot_pixel_fraction=0.0, cosmic_ray_rate_cm2_s=0.0)
-    frame = render_points((60, 60), [30.3], [29.6], [20000.0], sim, np.random.default_rng(3),
+    frame = render_points((60, 60), [30.3], [29.6], [5000.0], sim, np.random.default_rng(3),
                           noise_model="none")
     image = frame.image.astype(np.float64) + 100.0
-    expected = 20000.0 / frame.truth["noise"]["gain_e_per_adu"]
+    expected = 5000.0 / frame.truth["noise"]["gain_e_per_adu"]
     got = aperture_flux(image, np.array([30.3]), np.array([29.6]))[0]
     assert got == pytest.approx(expected, rel=0.05)
