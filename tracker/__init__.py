@@ -15,7 +15,8 @@ Each frame flows one way::
 * :mod:`tracker.protocol` frames packets for the flight computer, as
   ``docs/protocol.md`` specifies, and runs the serial link.
 * :mod:`tracker.pipeline` chains detect and identify for one frame;
-  :mod:`tracker.service` is the daemon around it.
+  :mod:`tracker.service` is the daemon around it; :mod:`tracker.focus` maps
+  the PSF's width across the field for ``tracker focus``.
 * :mod:`tracker.sim` renders synthetic frames with truth;
   :mod:`tracker.catalogue` loads the bundled Hipparcos stars;
   :mod:`tracker.camera` maps pixels to directions.

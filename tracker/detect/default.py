@@ -93,7 +93,10 @@ from tracker.detect.windowed import WindowedCentroider
 from tracker.normal import pixel_fractions
 from tracker.timing import StageTimer
 
-__all__ = ["DefaultDetector", "effective_sigma"]
+__all__ = ["DefaultDetector", "effective_sigma", "PSF_STAR_DTYPE"]
+
+PSF_STAR_DTYPE = np.dtype([("x", np.float64), ("y", np.float64), ("sigma_px", np.float64),
+                           ("ellipticity", np.float64)])
 
 _SIGMA_STEP = math.log(1.03)   # PSF sigmas are used in steps of 3 %
 _PSF_STARS = 48                # brightest stars examined for the PSF ...
@@ -121,6 +124,7 @@ _SKY_RING_WIDTH = 2            # ... outward by this many pixels
 _TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is textured,
 _TEXTURED_SKY_SECTORS = 6      # ... and its candidates need this many sky sectors
 _TILE_NEIGHBOURS = np.ones((3, 3), np.uint8)
+_BROAD_SKY_SECTORS = 4         # a broad candidate needs this many sky sectors
 _DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part holds an edge
 _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its tail modelled
 
@@ -393,6 +397,44 @@ class DefaultDetector:
                        grid.level_raw < 0.9 * self.saturation, out=self.dark_side)
         return bool(self.dark_side.any())
 
+    def psf_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The PSF of the last frame's stars near (x, y) px, one by one (for a focus map).
+
+        Returns the usable ones (isolated, unsaturated, round; at most 48 per
+        call, the first given first) as a structured array of x, y (px),
+        sigma_px and ellipticity (tracker.detect.psf's measure, star by star;
+        its windows are sized for the widest of the brightest few given, so
+        stars of very different widths are best measured in separate calls).
+        """
+        n = min(len(x), _PSF_STARS)
+        rows = np.clip(np.rint(np.asarray(y[:n])), 0, self.layout.rows - 1).astype(np.intp)
+        cols = np.clip(np.rint(np.asarray(x[:n])), 0, self.layout.cols - 1).astype(np.intp)
+        self.psf_cand[:n] = self.layout.flat_index(rows, cols)
+        self.grid.at(self.noise, self.psf_cand[:n], self.psf_noise[:n])
+        margin = int(math.ceil(_PSF_RING_SIGMAS * effective_sigma(self.psf.sigma_px))) + 1
+        h, w = self.input.shape
+        ok = self.edge_ok[:n]
+        np.greater_equal(rows, margin, out=ok)
+        ok &= (cols >= margin) & (rows < h - margin) & (cols < w - margin)
+        self.psf_meter.measure(n, self.input.padded, self.bg_pad, self.psf_cand,
+                               self.psf_noise, self.saturation, self.psf.sigma_px, ok,
+                               min_stars=1)
+        return self.psf_stars()
+
+    def psf_stars(self) -> np.ndarray:
+        """The stars of the last PSF measurement (the frame's or :meth:`psf_of`'s).
+
+        A structured array (a copy) of x, y (px), sigma_px and ellipticity.
+        Empty when the PSF was not measured on the frame's bright stars (too
+        few; ``detect.psf_measure`` false).
+        """
+        flat, sigma, ellipticity, offset = self.psf_meter.last_stars()
+        rows, cols = self.layout.frame_position(flat)
+        out = np.zeros(len(flat), PSF_STAR_DTYPE)
+        out["x"], out["y"] = cols + offset[:, 0], rows + offset[:, 1]
+        out["sigma_px"], out["ellipticity"] = sigma, ellipticity
+        return out
+
     def _search(self) -> int:
         """Filter, threshold, peaks and centroids with the PSF configured; star count."""
         timer, grid = self.timer, self.grid
@@ -604,8 +646,10 @@ class DefaultDetector:
         self.counters["cosmic_rays"] += n_sharp
         broad, body = self._broad(v, sharp)
         embedded = self._embedded(n, cand, v) & ~sharp
-        # a broad maximum with a body on some side is part of it (a ghost's rim)
-        on_body = broad & (self.surroundings.sky_sectors[:n] < _TEXTURED_SKY_SECTORS)
+        # a broad maximum with a body on most sides is part of it (a ghost's rim); a star
+        # merely wider than the frame's PSF (a corner of a lens out of focus) has its own
+        # wings on some sides
+        on_body = broad & (self.surroundings.sky_sectors[:n] < _BROAD_SKY_SECTORS)
         masked = (body | embedded | on_body) & ~sharp
         self.counters["masked"] = int(np.count_nonzero(masked))
         keep = np.flatnonzero(~(sharp | merged | masked))

@@ -131,6 +131,7 @@ class PsfMeter:
         self._index = np.zeros(c * k, np.intp)
         self._raw = np.zeros(c * k, np.uint16)
         self._bgwin = np.zeros(c * k, np.float32)
+        self.last_cand, self.last_n, self.last_good = np.zeros(0, np.intp), 0, np.zeros(0, bool)
         self.per_star = {name: np.zeros(c, np.float64) for name in (
             "x", "y", "w2", "s0", "mxx", "myy", "mxy", "cxx", "cyy", "cxy", "ring", "peak",
             "raw_peak")}
@@ -146,22 +147,24 @@ class PsfMeter:
 
     def measure(self, n: int, image_pad: np.ndarray, bg_pad: np.ndarray, cand: np.ndarray,
                 noise: np.ndarray, saturation: float, sigma_start: float,
-                edge_ok: np.ndarray) -> PsfEstimate | None:
+                edge_ok: np.ndarray, min_stars: int | None = None) -> PsfEstimate | None:
         """The PSF of the ``n`` candidates at padded flat indices ``cand`` (brightest first).
 
         ``image_pad`` (uint16) and ``bg_pad`` (float32): the frame and its
         background, padded alike; ``noise`` (n,): the pixel noise at each,
         ADU; ``edge_ok`` (n,) False for candidates too close to the frame's
-        edge for a window. Returns None when fewer than ``min_stars`` stars
-        agree.
+        edge for a window. Returns None when fewer than ``min_stars``
+        (default: the constructor's) stars agree.
 
         First the brightest few, in the largest windows, say roughly how
         wide the PSF is, whatever ``sigma_start`` (px) was; then every
         candidate is measured in windows just wide enough for the isolation
         ring.
         """
+        need = self.min_stars if min_stars is None else int(min_stars)
         n = min(int(n), self.capacity)
-        if n < self.min_stars:
+        self.last_n = 0
+        if n < need:
             return None
         p = {name: arr[:n] for name, arr in self.per_star.items()}
         p["w2"].fill(max(sigma_start ** 2 + PIXEL_VARIANCE, _MIN_WEIGHT_PX ** 2))
@@ -172,12 +175,26 @@ class PsfMeter:
         radius = min(self.radius, int(math.ceil(_RING[1] * w_typical * _RING_MARGIN)) + 1)
         view = self._iterate(n, radius, image_pad, bg_pad, cand, p, _ITERATIONS)
         sigma, ellipticity, _ = pixel_tensor_to_optics(p["cxx"], p["cyy"], p["cxy"])
+        self.last_cand, self.last_n = cand, n
         good = self._isolated(n, radius, view, p, noise[:n], saturation) & edge_ok[:n]
         # a spot narrower than any PSF the detector handles is a particle's, not a star's
         good &= ((ellipticity < _MAX_ELLIPTICITY) & (sigma >= SIGMA_MIN_PX)
                  & (sigma <= SIGMA_MAX_PX))
+        self.last_good = good
         return combine_stars(sigma[good], ellipticity[good], p["cxx"][good], p["cyy"][good],
-                        p["cxy"][good], self.min_stars)
+                             p["cxy"][good], need)
+
+    def last_stars(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The last :meth:`measure`'s usable stars: padded flat index, optical sigma (px),
+        ellipticity, and the centre offset (dx, dy) from that pixel, px (n, 2)."""
+        if self.last_n == 0:
+            empty = np.zeros(0)
+            return np.zeros(0, np.intp), empty, empty, np.zeros((0, 2))
+        n, good = self.last_n, self.last_good
+        p = {name: arr[:n] for name, arr in self.per_star.items()}
+        sigma, ellipticity, _ = pixel_tensor_to_optics(p["cxx"], p["cyy"], p["cxy"])
+        return (self.last_cand[:n][good].copy(), sigma[good], ellipticity[good],
+                np.column_stack([p["x"][good], p["y"][good]]))
 
     def _views(self, n: int, k: int) -> dict:
         out = {name: buf[: n * k].reshape(n, k) for name, buf in self._flat.items()}
