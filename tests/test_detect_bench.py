@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tracker.bench.detect_peers import PEERS
-from tracker.bench.detect_score import Score, match
+from tracker.bench.detect_score import FrameTruth, Score, match
 from tracker.config import SimConfig
 from tracker.sim import render_points
 
@@ -22,16 +22,21 @@ def test_match_is_one_to_one_and_nearest_first():
 
 
 def test_score_counts_recall_fdr_and_errors():
-    class Truth:
-        x = np.array([10.0, 30.0, 50.0])
-        y = np.array([10.0, 10.0, 10.0])
-        mag = np.array([3.0, 4.5, 6.5])
-        peak_snr = np.array([30.0, 8.0, 2.0])
-        detectable = np.array([True, True, False])
-        crb = np.array([0.02, 0.1, np.nan])
+    def truth(match_px=2.0):
+        return FrameTruth(np.array([10.0, 30.0, 50.0]), np.array([10.0, 10.0, 10.0]),
+                          np.array([3.0, 4.5, 6.5]), np.array([30.0, 8.0, 2.0]),
+                          np.array([True, True, False]), np.array([0.02, 0.1, np.nan]),
+                          match_px=match_px)
+
+    # a star of a wide PSF found 2.5 px from its truth: a poor centroid of that star
+    # when the PSF's sigma is 3 px, a false detection when it is 1 px
+    wide, narrow = Score(), Score()
+    wide.add(truth(3.0), np.array([32.5]), np.array([10.0]), 1.0)
+    narrow.add(truth(), np.array([32.5]), np.array([10.0]), 1.0)
+    assert (wide.false, wide.found, narrow.false, narrow.found) == (0, 1, 1, 0)
 
     score = Score()
-    score.add(Truth(), np.array([10.03, 50.2, 90.0]), np.array([10.04, 10.0, 90.0]), 5.0)
+    score.add(truth(), np.array([10.03, 50.2, 90.0]), np.array([10.04, 10.0, 90.0]), 5.0)
     s = score.summary()
     assert s["detected"] == 3 and s["false"] == 1  # the faint star found is not false
     assert s["recall"] == pytest.approx(0.5)

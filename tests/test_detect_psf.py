@@ -99,7 +99,8 @@ def test_psf_ellipticity_and_angle_are_measured():
 
 def test_the_tracker_averages_agreeing_frames_and_follows_a_change_at_once():
     """Measurements that agree within their errors are averaged (up to psf_memory_frames);
-    one that disagrees (focus moved) replaces the estimate for its own frame."""
+    one that disagrees (focus moved) replaces the estimate for its own frame; a frame
+    without a measurement keeps an estimate two frames agreed on."""
     rng = np.random.default_rng(5)
     tracker = PsfTracker(1.2, memory=20)
     used = []
@@ -109,10 +110,16 @@ def test_the_tracker_averages_agreeing_frames_and_follows_a_change_at_once():
     assert used[0] != 1.2                                  # the first frame's own value
     assert np.std(used[20:]) < 0.4 * 0.02 * 1.5            # averaged: steadier than one frame
     assert abs(np.mean(used[20:]) - 1.5) < 0.01
+    kept = tracker.update(None)                            # no stars this frame
+    assert kept.sigma_px == used[-1] and kept.stars == 0
     moved = tracker.update(PsfEstimate(2.1, 0.0, 0.0, 30, 0.03))
     assert moved.sigma_px == 2.1
-    kept = tracker.update(None)                            # no stars this frame
-    assert kept.sigma_px == 2.1 and kept.stars == 0
+    # one frame's word is not kept for a frame without stars (the next file of a folder
+    # may come from other optics): the configured start is; a second frame confirms it
+    assert tracker.update(None).sigma_px == 1.2
+    tracker.update(PsfEstimate(2.12, 0.0, 0.0, 30, 0.03))
+    kept = tracker.update(None)
+    assert abs(kept.sigma_px - 2.11) < 0.01 and kept.stars == 0
 
 
 def test_a_frame_of_faint_stars_of_a_wide_psf_is_searched_again_with_it():

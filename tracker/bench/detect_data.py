@@ -31,7 +31,8 @@ Tuned on (the conditions the detector was developed against):
   particle event (tracker.sim.scene.lunar_scene). Their frames are also
   solved (tracker.bench.detect).
 
-Held out (never run while the detector was being developed):
+Held out (never used to tune the detector: its scores were read, its frames
+never examined):
 
 * ``held-out/airy``: Airy PSFs (sigma 0.8-2.5 px, ellipticity up to 0.15)
   on frames whose sensor differs at random from the default: RAW8 or

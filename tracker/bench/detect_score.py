@@ -1,7 +1,10 @@
 """Scoring detections against simulated truth for ``tracker bench detect``.
 
 Matching: each detection is paired with the nearest truth star within
-``MATCH_PX`` (one-to-one, closest pairs first). Every rendered star counts
+``MATCH_PX`` or the frame's PSF sigma if wider (one-to-one, closest pairs
+first): a centroid at the detection limit (matched-filter SNR 5) has a
+standard error of about 0.3 sigma per axis, so a star of a wide PSF found
+3 px from its truth is that star, poorly centred, not a false detection. Every rendered star counts
 as truth, faint or just outside the frame, so finding one is never a false
 detection; hot pixels, cosmic rays and noise are false.
 
@@ -69,6 +72,7 @@ class FrameTruth:
     detectable: np.ndarray
     crb: np.ndarray          # px, NaN where not computed (not detectable)
     labels: np.ndarray | None = None   # tracker.sim.scene.LABELS per pixel, if a scene
+    match_px: float = MATCH_PX
 
     @classmethod
     def from_frame(cls, frame, criterion: str, variance, flux_unit: float,
@@ -97,7 +101,7 @@ class FrameTruth:
                                   box_sigma, variance(frame, i),
                                   saturation(frame, i) / flux_unit, model=model)[0]
         return cls(s["x"], s["y"], s["mag"], s["peak_snr"], detectable, crb,
-                   getattr(frame, "labels", None))
+                   getattr(frame, "labels", None), max(MATCH_PX, float(sigma_px)))
 
 
 def _truth_psf(frame) -> PsfShape | None:
@@ -128,7 +132,7 @@ class Score:
 
     def add(self, truth: FrameTruth, x: np.ndarray, y: np.ndarray, ms: float,
             stages: dict | None = None, rejected: int = 0) -> None:
-        owner = match(truth.x, truth.y, x, y)
+        owner = match(truth.x, truth.y, x, y, truth.match_px)
         self.detected += len(x)
         self.false += int(np.count_nonzero(owner < 0))
         labels = getattr(truth, "labels", None)

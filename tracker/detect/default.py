@@ -72,7 +72,7 @@ from tracker.config import DetectConfig
 from tracker.detect.background import QUANTISATION_NOISE_ADU, BackgroundGrid
 from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.frame_input import FrameInput, Reason
-from tracker.detect.impulse import ImpulseFilter, psf_contrast
+from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.multiplicative import MultiplicativeFit
 from tracker.detect.peaks import PeakFinder
@@ -105,16 +105,22 @@ _PSF_POOL = 8192               # spared impulse candidates looked at for those p
 _PSF_IMPULSE_CONTRAST = 0.95   # a peak this far above its 3x3 median is an impulse
 _PSF_PIXELS = 32768            # pixels above the PSF stage's threshold examined
 _PSF_RING_SIGMAS = 4.5         # tracker.detect.psf's isolation ring reaches this far
+_PSF_ROUND = 0.5               # a PSF candidate's 5x5 light is rounder than this
+_PLATEAU_STARS = 64            # saturated stars centred on their clipped core, at most
+_PLATEAU_FILL = 0.7            # ... when its radius is this much of the window's
 _CHUNK = 128                   # stars centroided at a time (bounds the window buffers)
 _ROUGH_REFERENCE_SNR = 30.0    # spots this bright set the frame's roughness reference
 _STAR_WIDTH = math.log(1.25)   # ... if their width is within 25 % of the PSF's
 _STAR_ELLIPTICITY = 0.2        # ... and they are round
 _TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
 _TRACK_ELLIPTICITY = 0.3       # ... this elongated is a particle's track
+_TRACK_EXCESS = 0.35           # a spot this much more elongated than the frame's PSF ...
+_SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
 _REMNANT_WIDTH = 0.85          # a spot this narrow and ...
 _REMNANT_ROUGH = 3.0           # ... this rough (x a point source's) is a track's remnant
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
+_SHARPEST_RING = 0.5 * psf_ring(SIGMA_MIN_PX)
 _FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
 _SECOND_LOOKS = 2              # searches again with a PSF measured on the candidates
 _SECOND_LOOK_CHANGE = math.log(1.25)  # ... when it is this far from the one used
@@ -125,6 +131,7 @@ _TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is
 _TEXTURED_SKY_SECTORS = 6      # ... and its candidates need this many sky sectors
 _TILE_NEIGHBOURS = np.ones((3, 3), np.uint8)
 _BROAD_SKY_SECTORS = 4         # a broad candidate needs this many sky sectors
+_WING_LEVEL = 0.5              # a saturated star's wings are under this much of saturation
 _DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part holds an edge
 _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its tail modelled
 
@@ -132,6 +139,13 @@ _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its ta
 def effective_sigma(psf_sigma_px: float) -> float:
     """Sigma of a Gaussian PSF after integration over a square pixel, px."""
     return math.sqrt(psf_sigma_px ** 2 + 1.0 / 12.0)
+
+
+def _far_ring(sigma_px: float) -> int:
+    """Outer radius (px) of the furthest sky ring (tracker.detect.surroundings) for an
+    optical PSF sigma of ``sigma_px``."""
+    inner = int(math.ceil(_SKY_RING_SIGMAS * effective_sigma(sigma_px)))
+    return inner + _SKY_RING_WIDTH + max(_SKY_RING_WIDTH, inner // 2)
 
 
 def _window_radius(psf_sigma_px: float) -> int:
@@ -201,7 +215,8 @@ class DefaultDetector:
         max_radius = _window_radius(SIGMA_MAX_PX)
         max_blend = 2 * max_radius if cfg.blend_radius_px is None else int(cfg.blend_radius_px)
         psf_radius = int(math.ceil(_PSF_RING_SIGMAS * effective_sigma(SIGMA_MAX_PX)))
-        layout = PaddedLayout(shape, max(max_radius, max_blend, psf_radius) + 1)
+        sky_radius = _far_ring(SIGMA_MAX_PX)
+        layout = PaddedLayout(shape, max(max_radius, max_blend, psf_radius, sky_radius) + 1)
         self.layout = layout
         self.input = FrameInput(shape, bit_depth, min_size=3, layout=layout, dtype=np.uint16)
         self.saturation = (self.input.full_scale if cfg.saturation_adu is None
@@ -239,6 +254,20 @@ class DefaultDetector:
         self.psf_values = np.zeros(_PSF_PEAKS, np.float32)
         self.psf_reads = np.zeros(_PSF_PEAKS, np.uint16)
         self.psf_contrast = np.zeros(_PSF_PEAKS, np.float32)
+        dy, dx = (a.ravel() for a in np.mgrid[-max_radius:max_radius + 1,
+                                              -max_radius:max_radius + 1])
+        self.plateau_offsets = (dy * layout.stride + dx).astype(np.intp)
+        self.plateau_xy = np.stack([dx, dy], axis=1).astype(np.float64)
+        self.plateau_index = np.zeros((_PLATEAU_STARS, dx.size), np.intp)
+        self.plateau_reads = np.zeros((_PLATEAU_STARS, dx.size), np.uint16)
+        self.plateau_full = np.zeros((_PLATEAU_STARS, dx.size), np.bool_)
+        dy, dx = (a.ravel() for a in np.mgrid[-2:3, -2:3])
+        self.round_offsets = (dy * layout.stride + dx).astype(np.intp)
+        self.round_moments = np.stack([np.ones(25), dx, dy, dx * dx, dy * dy, dx * dy],
+                                      axis=1).astype(np.float32)
+        self.round_index = np.zeros((_PSF_PEAKS, 25), np.intp)
+        self.round_reads = np.zeros((_PSF_PEAKS, 25), np.uint16)
+        self.round_values = np.zeros((_PSF_PEAKS, 25), np.float32)
         self.pool_height = np.zeros(_PSF_POOL, np.float32)
         self.pool_reads = np.zeros(_PSF_POOL, np.uint16)
         self.pool_noise = np.zeros(_PSF_POOL, np.float32)
@@ -262,15 +291,14 @@ class DefaultDetector:
             self.delivered_pad = np.zeros_like(self.input.padded)
         self.cand_noise = np.zeros(cfg.max_candidates, np.float32)
         self.cand_level = np.zeros(cfg.max_candidates, np.float32)
-        self.edge_ok = np.zeros(_PSF_STARS, np.bool_)
+        self.edge_px = np.zeros(_PSF_STARS, np.float64)
         self.tail = NoiseTail(self.grid.index)
         self.textured = np.zeros(grid_shape, np.bool_)
         self.dark_side = np.zeros(grid_shape, np.bool_)
         self.near_texture = np.zeros(grid_shape, np.bool_)
         self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
-        self.surroundings = Surroundings(
-            layout.stride, int(math.ceil(_SKY_RING_SIGMAS * effective_sigma(SIGMA_MAX_PX)))
-            + _SKY_RING_WIDTH, cfg.max_candidates, _CHUNK)
+        self.surroundings = Surroundings(layout.stride, sky_radius, cfg.max_candidates, _CHUNK,
+                                         _SKY_RING_WIDTH)
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
                          "sharp_spots": 0, "masked": 0, "candidates": 0, "left_out": 0}
         self._sigma_step = None
@@ -312,13 +340,15 @@ class DefaultDetector:
         if self.cfg.centroid_noise == "multiplicative":
             self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
         self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
-        inner = int(math.ceil(_SKY_RING_SIGMAS * sigma))
-        self.surroundings.configure(inner, inner + _SKY_RING_WIDTH)
+        self.surroundings.configure(int(math.ceil(_SKY_RING_SIGMAS * sigma)))
         # halfway between an impulse's contrast over its 3x3 median and that of a centred
         # star a tenth sharper than the PSF at its sharpest sub-pixel phase
         self.impulse_contrast = 0.5 * (1.0 + psf_contrast(_IMPULSE_PSF_MARGIN * sigma_px,
                                                           worst_phase=True))
         self.point_roughness = _point_roughness(self.centroider, sigma_px)
+        # a hot pixel's neighbours hold noise; those of a star a tenth sharper than the
+        # PSF, at its sharpest phase, more than twice this
+        self.impulse_ring = 0.5 * psf_ring(_IMPULSE_PSF_MARGIN * sigma_px)
 
     def _noise_f_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
         return self.grid.at(self.noise_f, flat, out)
@@ -356,10 +386,7 @@ class DefaultDetector:
         self.psf = self.psf_tracker.update(self._measure_psf() if self.cfg.psf_measure
                                            else None)
         self._configure(self.psf.sigma_px)
-        contrast = (self.cfg.impulse_contrast if self.cfg.impulse_contrast is not None
-                    else self.impulse_contrast)
-        self.counters.update(self.impulses.refine(self.input.padded, self.bg_pad,
-                                                  self.limit_pad, contrast))
+        self._refine_impulses()
         count = self._search()
         for _ in range(_SECOND_LOOKS):
             # too few bright stars for step 4: the centroided candidates measure the PSF,
@@ -377,6 +404,18 @@ class DefaultDetector:
         reason = (Reason.CROWDED if self.peaks.crowded
                   else Reason.TOO_MANY if self.counters["left_out"] else None)
         return self.table.result(count, reason, self.counters, timer.ms, self.psf)
+
+    def _refine_impulses(self) -> None:
+        """The impulse stage's second pass, judged against the PSF in use if this frame's
+        stars measured it; else against the sharpest PSF the detector handles (a PSF
+        from elsewhere may be wider than the frame's stars, and a pass for it would take
+        a sharper star's pixels for impulses and clear them as a track)."""
+        measured = self.psf.stars > 0
+        contrast = (self.cfg.impulse_contrast if self.cfg.impulse_contrast is not None
+                    else self.impulse_contrast if measured else self.impulses.contrast)
+        ring = self.impulse_ring if measured else _SHARPEST_RING
+        self.counters.update(self.impulses.refine(self.input.padded, self.bg_pad,
+                                                  self.limit_pad, contrast, ring))
 
     def _mark_dark_side(self) -> bool:
         """Mark the tiles that straddle the edge of a bright body; whether there are any.
@@ -411,14 +450,9 @@ class DefaultDetector:
         cols = np.clip(np.rint(np.asarray(x[:n])), 0, self.layout.cols - 1).astype(np.intp)
         self.psf_cand[:n] = self.layout.flat_index(rows, cols)
         self.grid.at(self.noise, self.psf_cand[:n], self.psf_noise[:n])
-        margin = int(math.ceil(_PSF_RING_SIGMAS * effective_sigma(self.psf.sigma_px))) + 1
-        h, w = self.input.shape
-        ok = self.edge_ok[:n]
-        np.greater_equal(rows, margin, out=ok)
-        ok &= (cols >= margin) & (rows < h - margin) & (cols < w - margin)
         self.psf_meter.measure(n, self.input.padded, self.bg_pad, self.psf_cand,
-                               self.psf_noise, self.saturation, self.psf.sigma_px, ok,
-                               min_stars=1)
+                               self.psf_noise, self.saturation, self.psf.sigma_px,
+                               self._edge_distance(rows, cols), min_stars=1)
         return self.psf_stars()
 
     def psf_stars(self) -> np.ndarray:
@@ -522,27 +556,57 @@ class DefaultDetector:
         value = self.psf_values[:n]
         np.take(self.input.padded.ravel(), cand, out=self.psf_reads[:n], mode="clip")
         np.copyto(value, self.psf_reads[:n])
+        unsaturated = value < self.saturation
         np.take(self.impulses.median_pad.ravel(), cand, out=self.psf_reads[:n], mode="clip")
         np.subtract(value, self.psf_reads[:n], out=self.psf_contrast[:n])
         np.subtract(value, np.take(self.bg_pad.ravel(), cand, mode="clip"), out=value)
         np.divide(self.psf_contrast[:n], np.maximum(value, 1e-6), out=self.psf_contrast[:n])
-        star = np.flatnonzero(self.psf_contrast[:n] < _PSF_IMPULSE_CONTRAST)[:_PSF_STARS]
+        # saturated peaks cannot be measured, and the bright pieces of particle tracks
+        # (dozens in an event) are not round: neither takes a star's place
+        star = np.flatnonzero((self.psf_contrast[:n] < _PSF_IMPULSE_CONTRAST) & unsaturated
+                              & self._round(cand, n))[:_PSF_STARS]
         m = len(star)
         if m == 0:
             return None
         self.psf_cand[:m] = cand[star]
         self.psf_noise[:m] = noise[star]
         rows, cols = self.layout.frame_position(self.psf_cand[:m])
-        margin = int(math.ceil(_PSF_RING_SIGMAS * effective_sigma(self.psf.sigma_px))) + 1
-        h, w = self.input.shape
-        ok = self.edge_ok[:m]
-        np.greater_equal(rows, margin, out=ok)
-        ok &= (cols >= margin) & (rows < h - margin) & (cols < w - margin)
         # under multiplicative noise the impulse filter clips the speckles of star cores:
         # their shape is measured on the frame as delivered
         frame = self.input.padded if self.speckle_fit is None else self.delivered_pad
         return self.psf_meter.measure(m, frame, self.bg_pad, self.psf_cand, self.psf_noise,
-                                      self.saturation, self.psf.sigma_px, ok)
+                                      self.saturation, self.psf.sigma_px,
+                                      self._edge_distance(rows, cols))
+
+    def _edge_distance(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Pixels from each (row, col) to the frame's nearest edge (a view of a buffer)."""
+        h, w = self.input.shape
+        out = self.edge_px[:len(rows)]
+        np.minimum(rows, cols, out=out, casting="unsafe")
+        np.minimum(out, h - 1 - rows, out=out)
+        np.minimum(out, w - 1 - cols, out=out)
+        return out
+
+    def _round(self, cand: np.ndarray, n: int) -> np.ndarray:
+        """Whether the light in the 5x5 pixels around each of ``cand[:n]`` is round: the
+        ellipticity of its central second moments (above the background) under
+        ``_PSF_ROUND``. A star's is (at any sub-pixel phase); a track's is not."""
+        idx = self.round_index[:n]
+        np.add(cand[:n, None], self.round_offsets[None, :], out=idx)
+        win = self.round_values[:n]
+        np.take(self.input.padded.ravel(), idx, out=self.round_reads[:n], mode="clip")
+        np.copyto(win, self.round_reads[:n])
+        np.subtract(win, np.take(self.bg_pad.ravel(), cand[:n], mode="clip")[:, None],
+                    out=win)
+        np.maximum(win, 0.0, out=win)
+        m = win @ self.round_moments                    # (n, 6): 1, x, y, x^2, y^2, xy
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s0 = m[:, 0]
+            mx, my = m[:, 1] / s0, m[:, 2] / s0
+            mxx, myy = m[:, 3] / s0 - mx * mx, m[:, 4] / s0 - my * my
+            mxy = m[:, 5] / s0 - mx * my
+            e = np.hypot(mxx - myy, 2.0 * mxy) / (mxx + myy)
+        return e < _PSF_ROUND
 
     def _bright_threshold(self, factor: float = 1.0) -> None:
         """The PSF stage's threshold (uint16): background + factor * psf_min_peak_sigma *
@@ -589,6 +653,31 @@ class DefaultDetector:
         self.grid.upsample(self.float_grid, self.threshold)
         self._raise_edges()
 
+    def _centre_plateaus(self, n: int, cand: np.ndarray, v: dict) -> None:
+        """Centre the stars whose clipped core nearly fills the centroid's window on that
+        core: the clipped pixels are those inside the PSF's contour at full scale,
+        symmetric about the star's centre, and their mean position is it (to about a
+        tenth of a pixel), where the window has too few unclipped pixels left to fit.
+        At most ``_PLATEAU_STARS`` of them (the first candidates), in boxes as wide
+        as the widest window."""
+        clipped = np.flatnonzero(v["raw_peak"][:n] >= self.saturation)[:_PLATEAU_STARS]
+        k = len(clipped)
+        if k == 0:
+            return
+        idx = self.plateau_index[:k]
+        np.add(cand[clipped, None], self.plateau_offsets[None, :], out=idx)
+        reads = self.plateau_reads[:k]
+        np.take(self.input.padded.ravel(), idx, out=reads, mode="clip")
+        full = self.plateau_full[:k]
+        np.greater_equal(reads, self.saturation, out=full)
+        count = full.sum(axis=1)
+        wide = count >= math.pi * (_PLATEAU_FILL * self.radius) ** 2
+        if not wide.any():
+            return
+        mean = (full[wide] @ self.plateau_xy) / count[wide, None]
+        v["x0"][clipped[wide]] = mean[:, 0]
+        v["y0"][clipped[wide]] = mean[:, 1]
+
     def _raise_edges(self) -> None:
         """Scale the threshold's height above the background near the borders.
 
@@ -616,6 +705,8 @@ class DefaultDetector:
         self.grid.at(self.residual, cand, level)
         v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level,
                                     self.saturation, self.peaks.blended[:n])
+        if self.speckle_fit is None:
+            self._centre_plateaus(n, cand, v)
         if self.speckle_fit is not None:  # its likelihood handles saturated stars too
             merged = self.centroider.refine_multiplicative(
                 n, self.speckle_fit, cand, self.delivered_pad, self.bg_pad, level,
@@ -639,6 +730,14 @@ class DefaultDetector:
         # a narrow spot rough at the pixel scale (a track's remnant)
         track = ((width < _TRACK_WIDTH) & (v["ellipticity"] > _TRACK_ELLIPTICITY)) | (
             (width < _REMNANT_WIDTH) & (rough > _REMNANT_ROUGH))
+        if self.psf.stars:
+            # against a PSF measured on this frame: a spot far more elongated than its
+            # stars is a particle's track, whatever its width (a charge cloud diffused
+            # over two pixels is as wide as a sharp PSF), a saturated one the more so (a
+            # saturated star's clipped top is as round as its PSF)
+            excess = v["ellipticity"] - self.psf.ellipticity
+            track |= (excess > _TRACK_EXCESS) | (
+                (v["raw_peak"] >= self.saturation) & (excess > _SATURATED_TRACK_EXCESS))
         narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
         sharp = judged & (narrow | (rough > self.cfg.rough_ratio))
         n_sharp = int(np.count_nonzero(sharp))
@@ -751,4 +850,20 @@ class DefaultDetector:
         self.grid.at(self.near_texture.view(np.uint8), cand, near)
         need = np.where(near > 0, max(self.cfg.min_sky_sectors, _TEXTURED_SKY_SECTORS),
                         self.cfg.min_sky_sectors)
-        return sectors < need
+        embedded = sectors < need
+        # a saturated star's wings fall away from its centroid on every side (a body on
+        # one side takes no more sectors from it than from an unsaturated star)
+        clipped = embedded & (v["raw_peak"][:n] >= self.saturation)
+        rows, cols = self.layout.frame_position(cand)
+        reach = self.surroundings.max_outer + 1         # its rings stay inside the frame
+        h, w = self.input.shape
+        clipped &= (rows >= reach) & (cols >= reach) & (rows < h - reach) & (cols < w - reach)
+        clipped = np.flatnonzero(clipped)
+        if len(clipped):
+            centre = (cand[clipped] + np.rint(v["y0"][clipped]).astype(np.intp)
+                      * self.layout.stride + np.rint(v["x0"][clipped]).astype(np.intp))
+            falling = self.surroundings.falling_sectors(
+                self.input.padded, self.bg_pad, centre, sky[clipped], v["peak"][clipped],
+                _WING_LEVEL * (self.saturation - bg[clipped]))
+            embedded[clipped] = falling < need[clipped]
+        return embedded

@@ -34,7 +34,10 @@ Across frames (:class:`PsfTracker`): the estimate in use is a running
 mean of the measurements that agree with it (within 3 standard errors;
 at most ``memory`` frames' worth), so a steady PSF is known ever more
 precisely; a measurement that disagrees (focus moved, a new scene)
-replaces it at once. A frame with no measurement keeps the estimate.
+replaces it at once. A frame with no measurement keeps the estimate once
+two frames have agreed on it; before that (one frame's measurement, which
+in a folder of frames from different cameras says nothing of the next)
+it is searched with the configured start.
 
 sigma here is the optics' Gaussian-equivalent sigma (pixel integration
 removed), the same quantity as ``detect.psf_sigma_px``; its FWHM is
@@ -147,14 +150,15 @@ class PsfMeter:
 
     def measure(self, n: int, image_pad: np.ndarray, bg_pad: np.ndarray, cand: np.ndarray,
                 noise: np.ndarray, saturation: float, sigma_start: float,
-                edge_ok: np.ndarray, min_stars: int | None = None) -> PsfEstimate | None:
+                edge_px: np.ndarray, min_stars: int | None = None) -> PsfEstimate | None:
         """The PSF of the ``n`` candidates at padded flat indices ``cand`` (brightest first).
 
         ``image_pad`` (uint16) and ``bg_pad`` (float32): the frame and its
         background, padded alike; ``noise`` (n,): the pixel noise at each,
-        ADU; ``edge_ok`` (n,) False for candidates too close to the frame's
-        edge for a window. Returns None when fewer than ``min_stars``
-        (default: the constructor's) stars agree.
+        ADU; ``edge_px`` (n,): each one's distance to the frame's nearest
+        edge, px (a star whose isolation ring the edge cuts is not used).
+        Returns None when fewer than ``min_stars`` (default: the
+        constructor's) stars agree.
 
         First the brightest few, in the largest windows, say roughly how
         wide the PSF is, whatever ``sigma_start`` (px) was; then every
@@ -176,7 +180,8 @@ class PsfMeter:
         view = self._iterate(n, radius, image_pad, bg_pad, cand, p, _ITERATIONS)
         sigma, ellipticity, _ = pixel_tensor_to_optics(p["cxx"], p["cyy"], p["cxy"])
         self.last_cand, self.last_n = cand, n
-        good = self._isolated(n, radius, view, p, noise[:n], saturation) & edge_ok[:n]
+        good = self._isolated(n, radius, view, p, noise[:n], saturation)
+        good &= edge_px[:n] >= _RING[1] * np.sqrt(p["w2"]) + 1.0
         # a spot narrower than any PSF the detector handles is a particle's, not a star's
         good &= ((ellipticity < _MAX_ELLIPTICITY) & (sigma >= SIGMA_MIN_PX)
                  & (sigma <= SIGMA_MAX_PX))
@@ -345,6 +350,11 @@ class PsfTracker:
     def update(self, measured: PsfEstimate | None) -> PsfEstimate:
         """Fold this frame's measurement in; returns the estimate for this frame."""
         if measured is None:
+            if self._weight < 2.0:
+                # one frame's word: the next frame may be another camera's (a folder of
+                # frames replayed) as well as this one's; the configured start is the
+                # better guess until a second frame agrees
+                return PsfEstimate(self.start)
             self.current = PsfEstimate(self.current.sigma_px, self.current.ellipticity,
                                        self.current.angle_rad, 0, self.current.sigma_error_px)
             return self.current

@@ -14,7 +14,10 @@ errors (plus a twentieth of the candidate's peak, for the faint wings of a
 broad PSF and neighbours' light) of the background and its spread is
 under 1.5 times the sky's noise (plus a hundredth of the peak, for the
 slope of those wings across the ring). A candidate with fewer than ``min_sky``
-sky sectors is embedded in a body and is masked.
+sky sectors is embedded in a body and is masked. A saturated star's peak is
+clipped, so its wings may stand above a twentieth of what is left of it
+on every side; but they fall away from it on every side, which
+:meth:`Surroundings.falling_sectors` tells.
 
 "The sky's noise" is not the tile's (a tile on textured terrain has a large
 noise, which would excuse its texture) but that of the frame's smooth sky
@@ -38,6 +41,7 @@ _MEAN_ERRORS = 3.0
 _PEAK_FRACTION = 0.05
 _SPREAD = 1.5
 _PEAK_SPREAD = 0.01
+_FALL = 0.5
 
 
 def sky_noise_model(level: np.ndarray, noise: np.ndarray,
@@ -64,27 +68,11 @@ def sky_noise_model(level: np.ndarray, noise: np.ndarray,
     return level0, var0, max(0.0, float(np.percentile(ratio, 25)))
 
 
-class Surroundings:
-    """The eight-sector sky test in padded buffers of uint16 frames: up to ``capacity``
-    candidates, ``chunk`` at a time."""
+class _Ring:
+    """Pixel offsets of the ring inner < r <= outer px around a pixel (padded buffers of
+    row ``stride``), in eight sectors."""
 
-    def __init__(self, stride: int, max_outer: int, capacity: int, chunk: int) -> None:
-        self.stride = int(stride)
-        self.max_outer = int(max_outer)
-        self.capacity = int(chunk)
-        side = 2 * self.max_outer + 1
-        self._index = np.zeros(self.capacity * side * side, np.intp)
-        self._values = np.zeros(self.capacity * side * side, np.float32)
-        self._reads = np.zeros(self.capacity * side * side, np.uint16)
-        self._bg = np.zeros(self.capacity * side * side, np.float32)
-        self._sums = np.zeros((3, self.capacity, _SECTORS), np.float64)
-        self.sky_sectors = np.zeros(int(capacity), np.int32)
-        self.configure(2, 3)
-
-    def configure(self, inner: int, outer: int) -> None:
-        """The ring inner < r <= outer px, at most the constructor's ``max_outer``."""
-        outer = min(int(outer), self.max_outer)
-        inner = min(int(inner), outer - 1)
+    def __init__(self, stride: int, inner: int, outer: int) -> None:
         dy, dx = np.mgrid[-outer:outer + 1, -outer:outer + 1]
         r = np.hypot(dx, dy)
         ring = (r > inner) & (r <= outer)
@@ -92,11 +80,75 @@ class Surroundings:
         sector = ((np.arctan2(dy, dx) + math.pi) / (2.0 * math.pi) * _SECTORS).astype(int)
         sector = np.minimum(sector, _SECTORS - 1)
         order = np.argsort(sector, kind="stable")
-        self.offsets = (dy * self.stride + dx)[order].astype(np.intp)
+        self.offsets = (dy * stride + dx)[order].astype(np.intp)
         member = np.zeros((_SECTORS, len(order)))
         member[sector[order], np.arange(len(order))] = 1.0
         self.member = member.T                         # (ring pixels, sectors)
         self.counts = member.sum(axis=1)
+
+
+class Surroundings:
+    """The eight-sector sky test in padded buffers of uint16 frames: up to ``capacity``
+    candidates, ``chunk`` at a time; rings ``width`` px wide reaching at most
+    ``max_outer`` px (the padding must be as wide)."""
+
+    def __init__(self, stride: int, max_outer: int, capacity: int, chunk: int,
+                 width: int = 2) -> None:
+        self.stride = int(stride)
+        self.max_outer = int(max_outer)
+        self.width = int(width)
+        self.capacity = int(chunk)
+        size = self.capacity * len(_Ring(self.stride, self.max_outer - self.width,
+                                         self.max_outer).offsets)
+        self._index = np.zeros(size, np.intp)
+        self._values = np.zeros(size, np.float32)
+        self._reads = np.zeros(size, np.uint16)
+        self._bg = np.zeros(size, np.float32)
+        self._sums = np.zeros((3, self.capacity, _SECTORS), np.float64)
+        self.sky_sectors = np.zeros(int(capacity), np.int32)
+        # every ring a width wide out to max_outer, made once: configure only picks
+        self._all_rings = [_Ring(self.stride, r - self.width, r)
+                           for r in range(self.width + 1, self.max_outer + 1)]
+        self.configure(1)
+
+    def configure(self, inner: int) -> None:
+        """The ring inner < r <= inner + width px; :meth:`falling_sectors` looks further
+        out, a width at a time, up to the constructor's ``max_outer``."""
+        width = self.width
+        outer = max(width + 1, min(int(inner) + width, self.max_outer - width))
+        first = outer - (width + 1)
+        self.rings = self._all_rings[first::width]
+        self.ring = self.rings[0]
+
+    def _sector_stats(self, ring: _Ring, a: int, b: int, image_pad: np.ndarray,
+                      bg_pad: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and spread (ADU above the background) of each sector around cand[a:b]."""
+        k = len(ring.offsets)
+        m = b - a
+        idx = self._index[: m * k].reshape(m, k)
+        np.add(cand[a:b, None], ring.offsets[None, :], out=idx)
+        values = self._values[: m * k].reshape(m, k)
+        background = self._bg[: m * k].reshape(m, k)
+        reads = self._reads[: m * k].reshape(m, k)
+        np.take(image_pad.ravel(), idx, out=reads, mode="clip")
+        np.copyto(values, reads)
+        np.take(bg_pad.ravel(), idx, out=background, mode="clip")
+        np.subtract(values, background, out=values)
+        total, square, _ = (s[:m] for s in self._sums)
+        np.matmul(values, ring.member, out=total)
+        np.multiply(values, values, out=values)
+        np.matmul(values, ring.member, out=square)
+        mean = total / ring.counts
+        spread = np.sqrt(np.maximum(square / ring.counts - mean * mean, 0.0))
+        return mean, spread
+
+    @staticmethod
+    def _is_sky(ring: _Ring, mean: np.ndarray, spread: np.ndarray, noise: np.ndarray,
+                peak: np.ndarray) -> np.ndarray:
+        counts = ring.counts
+        level_ok = np.abs(mean) < (_MEAN_ERRORS * noise[:, None] / np.sqrt(counts)
+                                   + _PEAK_FRACTION * peak[:, None])
+        return level_ok & (spread < _SPREAD * noise[:, None] + _PEAK_SPREAD * peak[:, None])
 
     def sky_sectors_of(self, n: int, image_pad: np.ndarray, bg_pad: np.ndarray,
                        cand: np.ndarray, sky_noise: np.ndarray, peak: np.ndarray) -> np.ndarray:
@@ -107,29 +159,46 @@ class Surroundings:
         noise at each candidate and ``peak`` (n,) its peak above the
         background, ADU.
         """
-        k = len(self.offsets)
         out = self.sky_sectors[:n]
         for a in range(0, n, self.capacity):
             b = min(n, a + self.capacity)
-            m = b - a
-            idx = self._index[: m * k].reshape(m, k)
-            np.add(cand[a:b, None], self.offsets[None, :], out=idx)
-            values = self._values[: m * k].reshape(m, k)
-            background = self._bg[: m * k].reshape(m, k)
-            reads = self._reads[: m * k].reshape(m, k)
-            np.take(image_pad.ravel(), idx, out=reads, mode="clip")
-            np.copyto(values, reads)
-            np.take(bg_pad.ravel(), idx, out=background, mode="clip")
-            np.subtract(values, background, out=values)
-            total, square, _ = (s[:m] for s in self._sums)
-            np.matmul(values, self.member, out=total)
-            np.multiply(values, values, out=values)
-            np.matmul(values, self.member, out=square)
-            mean = total / self.counts
-            spread = np.sqrt(np.maximum(square / self.counts - mean * mean, 0.0))
-            noise = sky_noise[a:b, None]
-            level_ok = np.abs(mean) < (_MEAN_ERRORS * noise / np.sqrt(self.counts)
-                                       + _PEAK_FRACTION * peak[a:b, None])
-            spread_ok = spread < _SPREAD * noise + _PEAK_SPREAD * peak[a:b, None]
-            np.sum(level_ok & spread_ok, axis=1, out=out[a:b])
+            mean, spread = self._sector_stats(self.ring, a, b, image_pad, bg_pad, cand)
+            sky = self._is_sky(self.ring, mean, spread, sky_noise[a:b], peak[a:b])
+            np.sum(sky, axis=1, out=out[a:b])
+        return out
+
+    def falling_sectors(self, image_pad: np.ndarray, bg_pad: np.ndarray, centre: np.ndarray,
+                        sky_noise: np.ndarray, peak: np.ndarray,
+                        ceiling: np.ndarray) -> np.ndarray:
+        """For a saturated star at each of ``centre`` (padded flat indices of the pixels
+        nearest its centroid): how many sectors are sky, or fall by half or more to the
+        next ring out, in the first ring whose mean is under ``ceiling`` (n,) ADU above
+        the background (0 if none is: saturated light as far as the rings reach).
+
+        A saturated star's wings may stand far above a twentieth of its
+        clipped peak on every side, but beyond its clipped core they fall
+        away from it on every side; a body's edge, a slope of glare or
+        textured ground does not. Returns a new (n,) int array (there are
+        few such stars).
+        """
+        n = len(centre)
+        out = np.zeros(n, np.int32)
+        for a in range(0, n, self.capacity):
+            b = min(n, a + self.capacity)
+            undecided = np.ones(b - a, bool)
+            inner = self.rings[0]
+            mean, spread = self._sector_stats(inner, a, b, image_pad, bg_pad, centre)
+            for outer in self.rings[1:]:
+                ready = undecided & (mean.mean(axis=1) < ceiling[a:b])
+                if ready.any():
+                    sky = self._is_sky(inner, mean, spread, sky_noise[a:b], peak[a:b])
+                    far, _ = self._sector_stats(outer, a, b, image_pad, bg_pad, centre)
+                    falls = sky | ((mean > 0.0) & (mean < ceiling[a:b, None])
+                                   & (far < _FALL * mean))
+                    out[a:b][ready] = np.sum(falls, axis=1)[ready]
+                    undecided &= ~ready
+                if not undecided.any():
+                    break
+                inner = outer
+                mean, spread = self._sector_stats(inner, a, b, image_pad, bg_pad, centre)
         return out
