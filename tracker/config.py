@@ -26,10 +26,12 @@ from typing import Any
 
 import yaml
 
+from tracker.errors import UserError
+
 __all__ = ["ConfigError", "Config", "knob", "load_config", "render_yaml", "config_checksum"]
 
 
-class ConfigError(ValueError):
+class ConfigError(UserError, ValueError):
     """A configuration file that cannot be used; the message is one line."""
 
 

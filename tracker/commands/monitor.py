@@ -19,7 +19,7 @@ import numpy as np
 import serial
 
 from tracker.attitude import matrix_from_quat, radec_roll_from_matrix
-from tracker.cli import UserError
+from tracker.errors import UserError
 from tracker.protocol.decoder import Packet, StreamDecoder
 from tracker.protocol.encoder import Encoder
 from tracker.protocol.framing import SEQ_MODULO

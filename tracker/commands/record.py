@@ -29,8 +29,8 @@ import numpy as np
 
 from tracker.capture.base import FrameError
 from tracker.capture.live import CameraError, cpu_temperature_c, make_source
-from tracker.cli import UserError
 from tracker.config import Config
+from tracker.errors import UserError
 
 __all__ = ["register", "run", "DiskGuard"]
 
