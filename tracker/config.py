@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import reprlib
 import types
 import typing
 from dataclasses import dataclass
@@ -27,8 +28,11 @@ from typing import Any
 import yaml
 
 from tracker.errors import UserError
+from tracker.regular_file import FileRefused, read_regular_file
+from tracker.yaml_bounded import YamlError, parse_yaml
 
-__all__ = ["ConfigError", "Config", "knob", "load_config", "render_yaml", "config_checksum"]
+__all__ = ["ConfigError", "Config", "knob", "load_config", "render_yaml", "config_checksum",
+           "check_config", "MAX_SENSOR_PIXELS", "MAX_CONFIG_BYTES"]
 
 
 class ConfigError(UserError, ValueError):
@@ -467,8 +471,8 @@ def _build_section(cls: type, data: Any, where: str, source: str) -> Any:
     for key, value in data.items():
         if key not in fields:
             known = ", ".join(sorted(fields))
-            raise ConfigError(f"{source}: {where}.{key}: found an unknown key, expected one of: "
-                              f"{known}")
+            raise ConfigError(f"{source}: {where}.{_name(key)}: found an unknown key, expected "
+                              f"one of: {known}")
         meta = dict(fields[key].metadata)
         try:
             values[key] = _coerce(value, hints[key], meta)
@@ -478,11 +482,23 @@ def _build_section(cls: type, data: Any, where: str, source: str) -> Any:
     return cls(**values)
 
 
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxdict, _REPR.maxtuple = 2, 4, 4, 4
+_REPR.maxstring, _REPR.maxlong, _REPR.maxother = 50, 30, 50
+
+
 def _show(value: Any) -> str:
-    text = repr(value)
+    """A value as the message shows it: its repr cut short (never the whole of a huge one)."""
+    text = _REPR.repr(value)
     if len(text) > 60:
         text = text[:57] + "..."
     return f"{text} ({type(value).__name__})"
+
+
+def _name(key: Any) -> str:
+    """A key as the message shows it."""
+    text = str(key) if isinstance(key, str) else _REPR.repr(key)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def config_from_dict(data: Any, source: str = "<config>") -> Config:
@@ -497,33 +513,86 @@ def config_from_dict(data: Any, source: str = "<config>") -> Config:
     for name, value in data.items():
         if name not in hints:
             known = ", ".join(f.name for f in dataclasses.fields(Config))
-            raise ConfigError(f"{source}: {name}: found an unknown section, expected one of: "
-                              f"{known}")
+            raise ConfigError(f"{source}: {_name(name)}: found an unknown section, expected "
+                              f"one of: {known}")
         sections[name] = _build_section(hints[name], value, name, source)
-    return Config(**sections)
+    return check_config(Config(**sections), source)
 
 
 def load_config(path: str | Path | None) -> Config:
-    """Load and validate a YAML configuration file; None gives the defaults."""
+    """Load and validate a YAML configuration file; None gives the defaults.
+
+    The file must be a regular file of at most :data:`MAX_CONFIG_BYTES`; its
+    YAML is read within the bounds of :mod:`tracker.yaml_bounded` (YAML 1.2
+    scalars, duplicate keys refused), then every key is checked against its
+    declaration and the keys against each other (:func:`check_config`).
+    """
     if path is None:
         return Config()
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the file: {exc.strerror or exc}") from None
+        text = read_regular_file(path, MAX_CONFIG_BYTES).decode("utf-8")
+    except FileRefused as exc:
+        raise ConfigError(f"{path}: cannot read the file: {exc}") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: found bytes that are not UTF-8, expected a YAML text "
                           "file") from None
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "somewhere"
-        problem = getattr(exc, "problem", None) or "not valid YAML"
-        raise ConfigError(f"{path}: (YAML syntax) at {where}: found {problem}, expected "
-                          "valid YAML") from None
+        data = parse_yaml(text)
+    except YamlError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
     return config_from_dict(data, str(path))
+
+
+# The largest configuration file read, in bytes (a full one with comments is ~20 KB).
+MAX_CONFIG_BYTES = 1 << 20
+
+# The largest sensor, width x height in pixels (2**25, e.g. 6144 x 5461): the
+# default detector needs about 40 bytes per pixel (1.3 GB here), and image
+# files are decoded only up to the configured camera's size.
+MAX_SENSOR_PIXELS = 1 << 25
+
+# Keys whose values must not decrease along each chain: a configuration where
+# they do cannot work (an empty exposure range, a backoff that starts above its
+# ceiling, a match count that the stars checked can never reach).
+ORDERED_KEYS = (
+    ("capture", ("exposure_min_us", "exposure_us", "exposure_max_us")),
+    ("capture", ("gain", "gain_max")),
+    ("service", ("retry_initial_s", "retry_max_s")),
+    ("link", ("reopen_backoff_s", "reopen_backoff_max_s")),
+    ("identify", ("pattern_stars", "verify_stars")),
+    ("identify", ("min_matched", "verify_stars")),
+)
+
+
+def check_config(cfg: Config, source: str = "<config>") -> Config:
+    """The checks across keys: :data:`ORDERED_KEYS`, the sensor size and principal point.
+
+    Returns ``cfg``; raises :class:`ConfigError` naming the first key at fault.
+    """
+    for section, chain in ORDERED_KEYS:
+        values = getattr(cfg, section)
+        # the widest pair first: min > max is named as such, not as min > start
+        pairs = sorted(((i, j) for i in range(len(chain)) for j in range(i + 1, len(chain))),
+                       key=lambda ij: ij[0] - ij[1])
+        for i, j in pairs:
+            low, high = chain[i], chain[j]
+            a, b = getattr(values, low), getattr(values, high)
+            if a > b:
+                raise ConfigError(
+                    f"{source}: {section}.{low}: found {a:g}, more than {section}.{high} "
+                    f"({b:g}), expected {low} <= {high}")
+    cam = cfg.camera
+    if cam.width * cam.height > MAX_SENSOR_PIXELS:
+        raise ConfigError(
+            f"{source}: camera.width x camera.height: found {cam.width} x {cam.height} = "
+            f"{cam.width * cam.height:,} pixels, expected at most {MAX_SENSOR_PIXELS:,}")
+    for key, size in (("cx", cam.width), ("cy", cam.height)):
+        value = getattr(cam, key)
+        if value is not None and not -0.5 <= value <= size - 0.5:
+            raise ConfigError(f"{source}: camera.{key}: found {value:g}, expected a pixel "
+                              f"inside the image, in [-0.5, {size - 0.5:g}]")
+    return cfg
 
 
 # --------------------------------------------------------------------------
