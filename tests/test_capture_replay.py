@@ -6,6 +6,7 @@ import pytest
 
 from tracker.capture import Frame, FrameError, ReplaySource
 from tracker.capture.imagefile import ImageReadError, read_image
+from tracker.errors import UserError
 
 
 @pytest.fixture(name="frame10")
@@ -122,7 +123,7 @@ def test_replay_loop_and_pacing(tmp_path, frame10):
 
 
 def test_missing_path_is_named(tmp_path):
-    with pytest.raises(FileNotFoundError, match=r"nothing.png: no such file or folder"):
+    with pytest.raises(UserError, match=r"nothing.png: no such file or folder"):
         ReplaySource([tmp_path / "nothing.png"])
 
 

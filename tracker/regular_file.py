@@ -61,11 +61,26 @@ def read_regular_file(path: str | os.PathLike, max_bytes: int) -> bytes:
     except OSError as exc:
         raise FileRefused(f"cannot read ({exc.strerror or exc})") from None
     with os.fdopen(fd, "rb") as fh:
-        _check(os.fstat(fd), max_bytes)
+        st = os.fstat(fd)
+        _check(st, max_bytes)
+        # read(n) allocates n bytes at once: ask for what the file holds, then in
+        # bounded chunks should it have grown
+        limit = max_bytes + 1
+        chunks: list[bytes] = []
+        total = 0
+        want = min(st.st_size + 1, limit)
         try:
-            data = fh.read(max_bytes + 1)
+            while total < limit:
+                asked = min(want, limit - total)
+                chunk = fh.read(asked)
+                chunks.append(chunk)
+                total += len(chunk)
+                if len(chunk) < asked:      # end of file
+                    break
+                want = 1 << 20
         except OSError as exc:
             raise FileRefused(f"cannot read ({exc.strerror or exc})") from None
+        data = b"".join(chunks)
     if len(data) > max_bytes:
         raise FileRefused(f"more than the {max_bytes:,} bytes allowed (the file is growing)")
     return data

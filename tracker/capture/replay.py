@@ -1,8 +1,9 @@
 """Replay backend: frames from image files or folders, in name order.
 
-Folders are expanded to the image files directly inside them (see
-:data:`tracker.capture.imagefile.IMAGE_SUFFIXES`), sorted by name; files
-named explicitly are kept in the order given. With ``loop`` the list starts
+Paths are expanded by the shared rule of :mod:`tracker.capture.input_paths`
+(folders to the image files directly inside them, sorted by name; files named
+explicitly in the order given; a missing path, a device or an empty folder is
+a one-line error before anything is read). With ``loop`` the list starts
 again after the last file; with ``fps`` > 0 frames are paced to that rate on
 the monotonic clock. A file that cannot be read becomes a
 :class:`~tracker.capture.base.FrameError` and replay goes on.
@@ -23,6 +24,7 @@ from pathlib import Path
 
 from tracker.capture.base import Frame, FrameError
 from tracker.capture.imagefile import IMAGE_SUFFIXES, ImageReadError, read_image
+from tracker.capture.input_paths import expand_inputs
 
 __all__ = ["ReplaySource", "expand_paths", "read_metadata", "METADATA_FILE"]
 
@@ -30,20 +32,8 @@ METADATA_FILE = "frames.jsonl"
 
 
 def expand_paths(paths: Sequence[str | Path]) -> list[Path]:
-    """Files named, plus the image files inside folders named, in replay order.
-
-    Raises FileNotFoundError naming the first path that does not exist.
-    """
-    out: list[Path] = []
-    for p in map(Path, paths):
-        if p.is_dir():
-            out.extend(sorted(f for f in p.iterdir()
-                              if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES))
-        elif p.exists():
-            out.append(p)
-        else:
-            raise FileNotFoundError(f"{p}: no such file or folder")
-    return out
+    """The image files to replay, in order (tracker.capture.input_paths; UserError if none)."""
+    return expand_inputs(paths, IMAGE_SUFFIXES)
 
 
 def read_metadata(paths: Sequence[str | Path]) -> dict[Path, dict]:
@@ -70,17 +60,24 @@ class ReplaySource:
     """A FrameSource over files; see the module docstring.
 
     ``expect_shape`` (height, width), when given, turns frames of another
-    size into errors rather than passing them on.
+    size into errors rather than passing them on. ``max_size`` (width,
+    height; default: that of ``expect_shape``) is the largest image decoded
+    (tracker.capture.imagefile); a larger one is an error read from its
+    header alone.
     """
 
     def __init__(self, paths: Sequence[str | Path], *, loop: bool = False, fps: float = 0.0,
-                 bits16_depth: int = 10, expect_shape: tuple[int, int] | None = None):
+                 bits16_depth: int = 10, expect_shape: tuple[int, int] | None = None,
+                 max_size: tuple[int, int] | None = None):
         self.files = expand_paths(paths)
         self.metadata = read_metadata(paths)
         self.loop = loop
         self.period_ns = int(1e9 / fps) if fps > 0 else 0
         self.bits16_depth = bits16_depth
         self.expect_shape = expect_shape
+        if max_size is None and expect_shape is not None:
+            max_size = (expect_shape[1], expect_shape[0])
+        self.max_size = max_size
         self._closed = False
 
     def __len__(self) -> int:
@@ -88,7 +85,7 @@ class ReplaySource:
 
     def _load(self, index: int, path: Path) -> Frame | FrameError:
         try:
-            image, depth = read_image(path, self.bits16_depth)
+            image, depth = read_image(path, self.bits16_depth, self.max_size)
         except ImageReadError as exc:
             return FrameError(index, path.name, str(exc))
         if self.expect_shape is not None and image.shape != tuple(self.expect_shape):
