@@ -20,6 +20,12 @@ Each frame flows one way::
   :mod:`tracker.catalogue` loads the bundled Hipparcos stars;
   :mod:`tracker.camera` maps pixels to directions.
 
+The library API is three names at the package root (loaded on first use,
+so ``import tracker`` stays light): :func:`tracker.solve` (an image file or
+array -> attitude), :func:`tracker.solve_centroids` (star centroids ->
+attitude) and :class:`tracker.UserError` (what both raise for a mistake a
+caller can fix); see :mod:`tracker.api`.
+
 Conventions: pixel (0, 0) is the centre of the top-left pixel, x = column,
 y = row; camera +Z is the boresight, +X toward increasing x; the attitude
 quaternion [w, x, y, z] (w >= 0) rotates ICRS into the camera frame
@@ -28,3 +34,20 @@ edges with the unit in the name. The README says how to run everything.
 """
 
 __version__ = "0.1.0"
+
+__all__ = ["solve", "solve_centroids", "SolveResult", "UserError", "__version__"]
+
+_LAZY = {"solve": "tracker.api", "solve_centroids": "tracker.api",
+         "SolveResult": "tracker.api", "UserError": "tracker.errors"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'tracker' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

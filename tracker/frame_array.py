@@ -23,10 +23,12 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from tracker.errors import UserError
+
 __all__ = ["FrameArrayError", "to_grey", "bit_depth_of", "as_frame"]
 
 
-class FrameArrayError(ValueError):
+class FrameArrayError(UserError, ValueError):
     """An array that cannot be a frame; the message says why in one line."""
 
 
