@@ -20,6 +20,7 @@ import logging
 import sys
 
 from tracker.capture.live import make_source
+from tracker.commands.argtypes import count, non_negative
 from tracker.config import Config
 from tracker.pipeline import Pipeline
 from tracker.service import Service
@@ -31,14 +32,15 @@ __all__ = ["register", "run", "build_service", "summary"]
 def register(sub, common) -> None:
     p = sub.add_parser("run", parents=[common], help="run the service: camera -> attitude "
                        "-> serial link (what systemd starts)")
-    p.add_argument("--frames", type=int, metavar="N",
+    p.add_argument("--frames", type=count, metavar="N",
                    help="stop after N frames (service.frames; default: run until stopped)")
     p.add_argument("--port", metavar="DEVICE", help="serial device or pyserial URL "
                    "(link.port), e.g. a pseudo-terminal")
     p.add_argument("--replay", nargs="+", metavar="PATH",
                    help="use the replay backend on these files or folders")
     p.add_argument("--loop", action="store_true", help="replay: start again after the last file")
-    p.add_argument("--fps", type=float, help="capture.fps (replay pacing; live frame rate)")
+    p.add_argument("--fps", type=non_negative,
+                   help="capture.fps (replay pacing; live frame rate)")
     p.add_argument("--summary", metavar="FILE", help="write a JSON summary at the end "
                    "('-' = stdout)")
     p.set_defaults(func=run)
