@@ -9,13 +9,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from sky_frames import sky_frames
 
 import tracker
 import tracker.api
-from tracker.attitude import attitude_error, matrix_from_quat, matrix_from_radec_roll
-from tracker.catalogue import load_catalogue
+from tracker.attitude import attitude_error, matrix_from_quat
 from tracker.config import Config, ConfigError, load_config
-from tracker.sim import render_sky
 
 ROOT = Path(__file__).resolve().parent.parent
 ORION = ROOT / "tests" / "data" / "real" / "cedar-solve" / "orion_belt.jpg"
@@ -25,10 +24,7 @@ ORION_CFG = ROOT / "tests" / "data" / "real" / "cedar-solve" / "orion_belt.yaml"
 @pytest.fixture(scope="module", name="sky")
 def fixture_sky():
     """One simulated OV2311 frame (16 mm, realistic sensor, 10-bit) and its truth."""
-    cfg = load_config(None)
-    catalogue = load_catalogue(epoch_year=2026.0, mag_limit=cfg.catalogue.mag_limit)
-    R = matrix_from_radec_roll(np.radians(201.3), np.radians(54.9), np.radians(140.0))
-    frame = render_sky(cfg.camera, catalogue, R, cfg.sim, np.random.default_rng(21))
+    (frame,) = sky_frames([(201.3, 54.9, 140.0)], 21)
     assert frame.image.dtype == np.uint16 and int(frame.image.max()) < 1024
     return frame
 

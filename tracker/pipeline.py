@@ -55,6 +55,7 @@ class Pipeline:
         self.camera = CameraModel.from_config(cfg.camera)
         self._detectors: OrderedDict[tuple, Detector] = OrderedDict()
         self._solver: Solver | None = None
+        self._catalogue: Catalogue | None = None
 
     def detector_for(self, shape: tuple[int, int], bit_depth: int) -> Detector:
         """The detector for frames of this shape and depth (one of the last used, or new)."""
@@ -68,11 +69,17 @@ class Pipeline:
         return detector
 
     @property
+    def catalogue(self) -> Catalogue:
+        """The configured catalogue, loaded on first use (raises CatalogueError)."""
+        if self._catalogue is None:
+            self._catalogue = Catalogue.from_config(self.cfg.catalogue)
+        return self._catalogue
+
+    @property
     def solver(self) -> Solver:
         """The solver, made on first use (raises the database's ConfigError)."""
         if self._solver is None:
-            catalogue = Catalogue.from_config(self.cfg.catalogue)
-            self._solver = make_solver(self.cfg.identify, self.camera, catalogue)
+            self._solver = make_solver(self.cfg.identify, self.camera, self.catalogue)
         return self._solver
 
     def reset(self) -> None:
