@@ -1,14 +1,13 @@
 """Image files that lie about their size, files that are not files, and the shared path rule."""
 
 import os
-import struct
 import tracemalloc
-import zlib
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from bad_files import black_png, npy_claiming, png_claiming
 
 from tracker.capture import Frame, FrameError, ReplaySource
 from tracker.capture.image_header import image_size
@@ -20,22 +19,6 @@ from tracker.frame_array import FrameArrayError, as_frame
 from tracker.pipeline import DETECTORS_KEPT, Pipeline
 
 REAL = Path(__file__).parent / "data" / "real" / "cedar-solve"
-
-
-def png_claiming(width: int, height: int) -> bytes:
-    """A tiny, valid-looking PNG whose IHDR claims width x height (8-bit grey)."""
-    def chunk(kind: bytes, body: bytes) -> bytes:
-        return (struct.pack(">I", len(body)) + kind + body
-                + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
-    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b""))
-            + chunk(b"IEND", b""))
-
-
-def npy_claiming(shape: tuple[int, ...], descr: str = "<u2") -> bytes:
-    header = f"{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}".encode()
-    header = header.ljust(118, b" ") + b"\n"
-    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header
 
 
 def test_header_bombs_are_refused_from_the_header_alone(tmp_path):
@@ -59,7 +42,7 @@ def test_header_bombs_are_refused_from_the_header_alone(tmp_path):
 
 
 def test_a_real_20000_pixel_png_is_not_decoded(tmp_path):
-    cv2.imwrite(str(tmp_path / "wide.png"), np.zeros((20000, 20000), np.uint8))
+    (tmp_path / "wide.png").write_bytes(black_png(20000, 20000))
     assert (tmp_path / "wide.png").stat().st_size < 1 << 20     # 400 MB of pixels
     assert image_size((tmp_path / "wide.png").read_bytes(), ".png") == (20000, 20000)
     with pytest.raises(ImageReadError, match=r"wide.png: image is 20000x20000 px"):
