@@ -1,5 +1,6 @@
 """Image files that lie about their size, files that are not files, and the shared path rule."""
 
+import json
 import os
 import tracemalloc
 from pathlib import Path
@@ -13,6 +14,7 @@ from tracker.capture import Frame, FrameError, ReplaySource
 from tracker.capture.image_header import image_size
 from tracker.capture.imagefile import ImageReadError, read_image
 from tracker.capture.input_paths import expand_inputs
+from tracker.cli import main
 from tracker.config import MAX_SENSOR_PIXELS, load_config
 from tracker.errors import UserError
 from tracker.frame_array import FrameArrayError, as_frame
@@ -218,3 +220,20 @@ def test_detectors_kept_are_bounded_however_many_sizes_come():
     # memory after 24 sizes is that of the last DETECTORS_KEPT, not of all 24
     assert DETECTORS_KEPT == 2
     assert sizes[-1] < 1.5 * sizes[DETECTORS_KEPT], sizes
+
+
+def test_the_service_reaches_the_frames_after_header_bombs(tmp_path):
+    """Before, the decoder's exception left the source: the service reopened it and started
+    the replay again from the bomb, never reaching the frames after it."""
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    (folder / "a.png").write_bytes(png_claiming(60000, 60000))
+    (folder / "b.npy").write_bytes(npy_claiming((100000, 100000)))
+    rng = np.random.default_rng(8)
+    np.save(folder / "c.npy", rng.integers(0, 60, (1300, 1600), dtype=np.uint16))
+    summary = tmp_path / "summary.json"
+    assert main(["run", "--replay", str(folder), "--frames", "3", "--port", "loop://",
+                 "--summary", str(summary)]) == 0
+    result = json.loads(summary.read_text())
+    assert (result["frames"], result["processed"]) == (3, 1)
+    assert result["faults"]["frame_unreadable"] == 2 and "camera_lost" not in result["faults"]
