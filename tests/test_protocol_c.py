@@ -38,7 +38,7 @@ def _service_stream(seed=11):
         q = q / np.linalg.norm(q) * np.sign(q[0])
         parts.append(enc.encode(MsgId.ATTITUDE, frame_id=k, t_ns=int(rng.integers(0, 2**63)),
                                 q_w=q[0], q_x=q[1], q_y=q[2], q_z=q[3],
-                                sigma_xy_arcsec=rng.uniform(1, 10), sigma_roll_arcsec=math.nan,
+                                sigma_cross_arcsec=rng.uniform(1, 10), sigma_roll_arcsec=math.nan,
                                 rate_x=rng.normal(), rate_y=-0.0, rate_z=math.inf,
                                 matched=k, mode=Mode.TRACKING, flags=k % 16))
         stars = np.zeros(int(rng.integers(0, 70)), dtype=BY_ID[MsgId.CENTROIDS].item_dtype)

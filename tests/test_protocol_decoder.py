@@ -14,7 +14,7 @@ ITEM = BY_ID[MsgId.CENTROIDS].item_dtype
 
 def _attitude(enc, k, x):
     return enc.encode(MsgId.ATTITUDE, frame_id=k, t_ns=k * 1000, q_w=x, q_x=0.5, q_y=-x,
-                      q_z=0.25, sigma_xy_arcsec=3.0, sigma_roll_arcsec=9.0, rate_x=x,
+                      q_z=0.25, sigma_cross_arcsec=3.0, sigma_roll_arcsec=9.0, rate_x=x,
                       rate_y=0.0, rate_z=0.0, matched=k % 60, mode=Mode.TRACKING, flags=1)
 
 

@@ -16,9 +16,15 @@ import importlib
 import logging
 import sys
 
-from tracker.config import ConfigError, load_config, render_markdown_table, render_yaml
+from tracker.config import (
+    ConfigError,
+    UserError,
+    load_config,
+    render_markdown_table,
+    render_yaml,
+)
 
-__all__ = ["main", "UserError"]
+__all__ = ["main"]
 
 # Subcommand modules, in the order `tracker --help` lists them.
 COMMAND_MODULES = (
@@ -33,10 +39,6 @@ COMMAND_MODULES = (
     "tracker.commands.calibrate",
     "tracker.commands.validate",
 )
-
-
-class UserError(Exception):
-    """An error the user can fix; printed as one line, exit status 2."""
 
 
 def _config_command(args: argparse.Namespace, cfg) -> int:

@@ -26,11 +26,16 @@ from typing import Any
 
 import yaml
 
-__all__ = ["ConfigError", "Config", "knob", "load_config", "render_yaml", "config_checksum"]
+__all__ = ["ConfigError", "UserError", "Config", "knob", "load_config", "render_yaml",
+           "config_checksum"]
 
 
 class ConfigError(ValueError):
     """A configuration file that cannot be used; the message is one line."""
+
+
+class UserError(Exception):
+    """Any other error the user can fix (a bad option, a missing input); one line, exit 2."""
 
 
 def knob(default: Any, doc: str, unit: str = "", *, min: float | None = None,
@@ -296,12 +301,15 @@ class LinkConfig:
                               min=0, max=1020)
     queue_attitude: int = knob(4, "ATTITUDE packets waiting to be sent; when full the "
                                "oldest is dropped", "packets", min=1, max=1024)
+    queue_replies: int = knob(256, "ACK/NACK replies waiting; a burst of up to this many "
+                              "commands gets every reply, a longer flood sheds the oldest",
+                              "packets", min=1, max=65536)
     queue_centroids: int = knob(8, "CENTROIDS packets waiting; oldest dropped when full",
                                 "packets", min=1, max=1024)
     queue_status: int = knob(2, "STATUS packets waiting; oldest dropped when full",
                              "packets", min=1, max=1024)
-    max_age_ms: float = knob(500.0, "a queued packet older than this is dropped unsent",
-                             "ms", min=1.0, max=60000.0)
+    max_age_ms: float = knob(500.0, "a queued telemetry packet older than this is dropped "
+                             "unsent (replies are not)", "ms", min=1.0, max=60000.0)
     write_timeout_s: float = knob(0.5, "a write to the port that takes longer counts as a "
                                   "port error (the port is reopened)", "s", min=0.01,
                                   max=60.0)
@@ -350,7 +358,7 @@ class CaptureConfig:
 
 @dataclass(frozen=True)
 class ServiceConfig:
-    """The daemon loop (tracker.service)."""
+    """The daemon loop (tracker.daemon)."""
 
     log_level: str = knob("INFO", "logging threshold",
                           choices=("DEBUG", "INFO", "WARNING", "ERROR"))
@@ -362,16 +370,18 @@ class ServiceConfig:
                                   "link.status_rate_hz)", "s", min=0.05, max=3600.0)
     retry_initial_s: float = knob(0.5, "first wait before reopening a failed camera", "s",
                                   min=0.01, max=60.0)
-    retry_max_s: float = knob(8.0, "longest wait between camera reopen attempts (doubling "
-                              "backoff)", "s", min=0.01, max=600.0)
-    track_after: int = knob(2, "consecutive solved frames before acquiring becomes "
+    retry_max_s: float = knob(1.0, "longest wait between camera reopen attempts (doubling "
+                              "backoff); a camera that comes back is streaming within "
+                              "about this long", "s", min=0.01, max=600.0)
+    track_after: int = knob(2, "consecutive solved frames before lost_in_space becomes "
                             "tracking", min=1, max=1000)
     lost_after: int = knob(3, "consecutive unsolved frames before tracking falls back to "
-                           "acquiring", min=1, max=1000)
-    fault_after: int = knob(20, "consecutive failed frames (unreadable, stage error, no "
-                            "camera) before the state is fault", min=1, max=100000)
-    start_state: str = knob("acquiring", "state at start; standby waits for the flight "
-                            "computer's command", choices=("standby", "acquiring"))
+                           "lost_in_space", min=1, max=1000)
+    fault_after: int = knob(20, "consecutive failed frames (unreadable, late, stage error) "
+                            "before the mode is fault (no camera: at once)", min=1,
+                            max=100000)
+    start_state: str = knob("lost_in_space", "mode at start; standby waits for the flight "
+                            "computer's SET_MODE", choices=("standby", "lost_in_space"))
 
 
 @dataclass(frozen=True)

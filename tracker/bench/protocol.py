@@ -65,7 +65,7 @@ def sample_stars(rng: np.random.Generator, n: int) -> np.ndarray:
 
 def sample_attitude(enc: Encoder, k: int) -> bytes:
     return enc.encode(MsgId.ATTITUDE, frame_id=k, t_ns=k * 33_333_333, q_w=0.5, q_x=0.5,
-                      q_y=-0.5, q_z=0.5, sigma_xy_arcsec=5.0, sigma_roll_arcsec=30.0,
+                      q_y=-0.5, q_z=0.5, sigma_cross_arcsec=5.0, sigma_roll_arcsec=30.0,
                       rate_x=0.01, rate_y=0.0, rate_z=-0.02, matched=17, mode=Mode.TRACKING,
                       flags=3)
 
@@ -172,7 +172,7 @@ def _overload(cfg, rng: np.random.Generator, baud: int, seconds: float) -> dict:
     k = 0
     while time.monotonic() - t0 < seconds:
         t_ns = time.monotonic_ns()
-        link.send_attitude(frame_id=k, t_ns=t_ns, q=[1.0, 0.0, 0.0, 0.0], sigma_xy_arcsec=5.0,
+        link.send_attitude(frame_id=k, t_ns=t_ns, q=[1.0, 0.0, 0.0, 0.0], sigma_cross_arcsec=5.0,
                            sigma_roll_arcsec=30.0, matched=12, mode=Mode.TRACKING)
         link.send_centroids(k, t_ns, stars)
         link.send_status(**STATUS_VALUES)

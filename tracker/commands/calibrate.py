@@ -25,8 +25,7 @@ import numpy as np
 from tracker.camera import CameraModel
 from tracker.capture.imagefile import IMAGE_SUFFIXES, read_image
 from tracker.catalogue import Catalogue
-from tracker.cli import UserError
-from tracker.config import render_yaml
+from tracker.config import UserError, render_yaml
 from tracker.detect import STAR_DTYPE, make_detector
 from tracker.identify.calibration import CalibrationFrame, calibrate
 from tracker.identify.database import PatternDatabase, find_database

@@ -27,10 +27,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from tracker.board import cpu_temperature_c
+from tracker.capture.backends import make_source
 from tracker.capture.base import FrameError
-from tracker.capture.live import CameraError, cpu_temperature_c, make_source
-from tracker.cli import UserError
-from tracker.config import Config
+from tracker.capture.live import CameraError
+from tracker.config import Config, UserError
 
 __all__ = ["register", "run", "DiskGuard"]
 

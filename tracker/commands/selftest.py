@@ -31,8 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tracker.board import cpu_temperature_c
+from tracker.capture.backends import make_source
 from tracker.capture.base import Frame
-from tracker.capture.live import cpu_temperature_c, make_source
 from tracker.catalogue import CatalogueError, default_catalogue_path, load_catalogue
 from tracker.config import Config
 

@@ -31,8 +31,8 @@ import numpy as np
 from tracker.attitude import radec_to_vector, vector_to_radec
 from tracker.camera import CameraModel
 from tracker.catalogue import Catalogue
-from tracker.cli import UserError
 from tracker.commands.calibrate import expand_frames, load_stars
+from tracker.config import UserError
 from tracker.identify import make_solver
 from tracker.identify.affine import apply_affine, fit_affine, law_of_cosines, nearest_star
 

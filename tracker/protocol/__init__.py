@@ -21,7 +21,7 @@ The service's use::
     from tracker.protocol import Link, Mode, Reason
 
     with Link(cfg.link, handler) as link:        # handler: a CommandHandler
-        link.send_attitude(frame_id=n, t_ns=t, q=q, sigma_xy_arcsec=s1,
+        link.send_attitude(frame_id=n, t_ns=t, q=q, sigma_cross_arcsec=s1,
                            sigma_roll_arcsec=s2, matched=m, mode=Mode.TRACKING)
         link.send_centroids(n, t, stars)          # x, y, flux, hip, flags rows
         link.send_status(uptime_s=..., ...)       # STATUS fields

@@ -21,11 +21,13 @@ from tracker.protocol.budget import (
 )
 from tracker.protocol.framing import OVERHEAD
 from tracker.protocol.messages import (
+    ERROR_MEANING,
     MAX_STARS_PER_PACKET,
     MESSAGES,
     TYPES,
     AttitudeFlag,
     Direction,
+    ErrorCode,
     MessageDef,
     Mode,
     MsgId,
@@ -85,11 +87,15 @@ def _ids() -> str:
 def _enums() -> str:
     out = []
     for title, enum in (("Mode", Mode), ("Reason (ACK/NACK `code`)", Reason),
-                        ("AttitudeFlag (bits of ATTITUDE `flags`)", AttitudeFlag)):
+                        ("AttitudeFlag (bits of ATTITUDE `flags`; other bits are 0)",
+                         AttitudeFlag)):
         out += [f"**{title}**", "", "| value | name |", "|---:|---|"]
         out += [f"| {int(e)} | {e.name} |" for e in enum]
         out.append("")
-    return "\n".join(out).rstrip()
+    out += ["**ErrorCode (STATUS `last_error`)**", "", "| value | name | meaning |",
+            "|---:|---|---|"]
+    out += [f"| {int(e)} | {e.name} | {ERROR_MEANING[e]} |" for e in ErrorCode]
+    return "\n".join(out)
 
 
 def _budget() -> str:
@@ -182,16 +188,29 @@ def _c_parse(m: MessageDef) -> list[str]:
             ioff += TYPES[f.type][1]
         out.append("    }")
     for f in m.fields:
-        cond = []
-        if f.choices is not None:
-            cond.append(" && ".join(f"m->{f.name} != {c}u" for c in f.choices))
-        if f.lo is not None:
-            lit = f"{f.lo!r}f" if f.type == "f32" else f"{int(f.lo)}u"
-            hit = f"{f.hi!r}f" if f.type == "f32" else f"{int(f.hi)}u"
-            cond.append(f"!(m->{f.name} >= {lit} && m->{f.name} <= {hit})")
+        cond = _c_range_check(f)
         if cond:
-            out.append(f"    if ({' || '.join(cond)}) return ST_OUT_OF_RANGE;")
+            out.append(f"    if ({cond}) return ST_OUT_OF_RANGE;")
     return out + ["    return ST_OK;", "}", ""]
+
+
+def _c_literal(f, value) -> str:
+    return f"{float(value)!r}f" if f.type == "f32" else f"{int(value)}u"
+
+
+def _c_range_check(f) -> str:
+    """The C condition that is true when field f of struct m is NOT valid ('' if any is)."""
+    if f.choices is not None:
+        return " && ".join(f"m->{f.name} != {c}u" for c in f.choices)
+    if f.lo is None:
+        return ""
+    inside = [f"m->{f.name} <= {_c_literal(f, f.hi)}"]
+    if f.type == "f32" or f.lo > 0:         # an unsigned field is never below 0
+        inside.insert(0, f"m->{f.name} >= {_c_literal(f, f.lo)}")
+    ok = " && ".join(inside)
+    if f.also:
+        ok = " || ".join([*(f"m->{f.name} == {_c_literal(f, a)}" for a in f.also), f"({ok})"])
+    return f"!({ok})"
 
 
 def _c_pack(m: MessageDef) -> list[str]:
@@ -315,6 +334,9 @@ def render_c_header() -> str:
     out += [f"    ST_{e.name} = {int(e)}," for e in Reason]
     out += ["};", "", "enum st_attitude_flag {"]
     out += [f"    ST_ATT_{e.name} = {int(e)}," for e in AttitudeFlag]
+    out += ["};", "", "/* STATUS.last_error: the latest fault the tracker survived. */",
+            "enum st_error_code {"]
+    out += [f"    ST_ERR_{e.name} = {int(e)}," for e in ErrorCode]
     out += ["};", ""]
     for m in MESSAGES:
         out.append(f"#define ST_{m.name}_SIZE {m.min_size}u")
