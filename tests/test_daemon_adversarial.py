@@ -14,10 +14,8 @@ except while the port was closed.
 import dataclasses
 import math
 import os
-import pty
 import threading
 import time
-import tty
 
 import numpy as np
 import pytest
@@ -31,6 +29,7 @@ from tracker.daemon.notify import Notifier
 from tracker.protocol.decoder import StreamDecoder
 from tracker.protocol.encoder import Encoder
 from tracker.protocol.messages import AttitudeFlag, Direction, ErrorCode, Mode, MsgId, Reason
+from tracker.protocol.nullmodem import ReplugPty
 
 FRAME_PERIOD_S = 0.012        # above ATTITUDE's 10 ms at 100 Hz: every frame is due
 
@@ -45,30 +44,18 @@ class FlightComputer:
         self.packets = []
         self.lock = threading.Lock()
         self.stop = threading.Event()
-        self.fds = self._new_pty()
+        self.pty = ReplugPty(link_path)
         self.thread = threading.Thread(target=self._read, daemon=True)
         self.thread.start()
 
-    def _new_pty(self):
-        master, slave = pty.openpty()
-        tty.setraw(slave)
-        os.set_blocking(master, False)
-        tmp = self.link_path.with_suffix(".new")
-        os.symlink(os.ttyname(slave), tmp)
-        os.replace(tmp, self.link_path)
-        return master, slave
-
     def reopen(self):
-        old = self.fds
         with self.lock:
-            self.fds = self._new_pty()
-        for fd in old:
-            os.close(fd)
+            self.pty.replug()
 
     def _read(self):
         while not self.stop.is_set():
             with self.lock:
-                fd = self.fds[0]
+                fd = self.pty.master
                 try:
                     data = os.read(fd, 65536)
                 except (BlockingIOError, OSError):
@@ -83,7 +70,7 @@ class FlightComputer:
         while view:
             with self.lock:
                 try:
-                    view = view[os.write(self.fds[0], view):]
+                    view = view[os.write(self.pty.master, view):]
                 except BlockingIOError:
                     pass
             time.sleep(0.0005)
@@ -107,8 +94,7 @@ class FlightComputer:
     def close(self):
         self.stop.set()
         self.thread.join(5)
-        for fd in self.fds:
-            os.close(fd)
+        self.pty.close()
 
 
 def packet_key(packet: bytes) -> tuple[int, int]:

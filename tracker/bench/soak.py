@@ -28,12 +28,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import pty
 import resource
 import tempfile
 import threading
 import time
-import tty
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +45,7 @@ from tracker.pipeline import Pipeline
 from tracker.protocol.decoder import StreamDecoder
 from tracker.protocol.encoder import Encoder
 from tracker.protocol.messages import Direction, ErrorCode, Mode, MsgId
+from tracker.protocol.nullmodem import ReplugPty
 
 __all__ = ["add_arguments", "run"]
 
@@ -159,17 +158,7 @@ class _FlightComputer(threading.Thread):
         self.lock = threading.Lock()
         self.stop = threading.Event()
         self.status_event = threading.Event()
-        self.master = self._new_pty()
-
-    def _new_pty(self) -> int:
-        master, slave = pty.openpty()
-        tty.setraw(slave)
-        os.set_blocking(master, False)
-        tmp = self.link_path.with_suffix(".new")
-        os.symlink(os.ttyname(slave), tmp)
-        os.replace(tmp, self.link_path)
-        self._slave = slave     # kept open so the node survives until the link opens it
-        return master
+        self.pty = ReplugPty(link_path)
 
     def ask(self, what: str) -> None:
         with self.lock:
@@ -178,10 +167,7 @@ class _FlightComputer(threading.Thread):
     def _do(self, what: str) -> None:
         rng = np.random.default_rng(len(self.requests) + sum(self.inj.n.values()))
         if what == "close":
-            old, old_slave = self.master, self._slave
-            self.master = self._new_pty()
-            os.close(old)
-            os.close(old_slave)
+            self.pty.replug()
             self.inj.n["port_close"] += 1
         elif what == "garbage":
             bad = bytearray(self.encoder.encode(MsgId.PING))
@@ -202,14 +188,14 @@ class _FlightComputer(threading.Thread):
         deadline = time.monotonic() + 5
         while view and time.monotonic() < deadline:
             try:
-                view = view[os.write(self.master, view):]
+                view = view[os.write(self.pty.master, view):]
             except BlockingIOError:
                 self._read()
                 time.sleep(0.001)
 
     def _read(self) -> None:
         try:
-            data = os.read(self.master, 65536)
+            data = os.read(self.pty.master, 65536)
         except (BlockingIOError, OSError):
             return
         for p in self.decoder.feed(data):
@@ -226,8 +212,7 @@ class _FlightComputer(threading.Thread):
                 self._do(what)
             self._read()
             time.sleep(0.002)
-        os.close(self.master)
-        os.close(self._slave)
+        self.pty.close()
 
 
 def _percentiles(values: np.ndarray) -> dict:
