@@ -7,7 +7,6 @@ bit-exact; times within 1 ms of the conversion done here independently
 (the BOOTTIME-MONOTONIC offset is read at two slightly different instants).
 """
 
-import contextlib
 import dataclasses
 import sys
 import time
@@ -16,11 +15,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from fake_picamera2 import FakeMappedArray, FakePicamera2, frame_stream
 
-from tracker.capture.base import Frame, FrameError
+from tracker.capture.base import Frame, FrameError, Waiting
 from tracker.capture.imagefile import read_image
 from tracker.capture.live import CameraError
-from tracker.capture.picamera2_source import Picamera2Source
+from tracker.capture.picamera2_source import Picamera2Source, compatibility_problem
 from tracker.capture.v4l2_source import V4L2Source
 from tracker.config import CaptureConfig
 
@@ -46,98 +46,52 @@ def r16_buffer(image: np.ndarray, shift: int, pad: int = 64) -> np.ndarray:
 
 # --------------------------------------------------------------------------- picamera2
 
-
-class FakeRequest:
-    def __init__(self, buf, md):
-        self.buf, self.md, self.released = buf, md, False
-
-    def get_metadata(self):
-        return dict(self.md)
-
-    def release(self):
-        self.released = True
+VERSIONS = ("0.3.25", False)      # the pinned pair with Arducam's libcamera 0.3.x
 
 
-class FakeMappedArray:
-    def __init__(self, request, stream):
-        assert stream == "raw"
-        self.array = request.buf
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-
-class FakePicamera2:
-    """Serves a script: FakeRequest items, or exceptions to raise from the capture."""
-
-    def __init__(self, script, granted="R16"):
-        self.script, self.granted = list(script), granted
-        self.config = self.controls = None
-        self.started = self.closed = False
-        self.served = []
-
-    def create_still_configuration(self, **kw):
-        return kw
-
-    def configure(self, config):
-        self.config = config
-
-    def camera_configuration(self):
-        return {"raw": {"format": self.granted, "size": self.config["raw"]["size"]}}
-
-    def start(self):
-        self.started = True
-
-    def stop(self):
-        self.started = False
-
-    def close(self):
-        self.closed = True
-
-    def set_controls(self, controls):
-        self.controls = controls
-
-    @contextlib.contextmanager
-    def captured_request(self, wait=None):
-        item = self.script.pop(0)
-        if isinstance(item, BaseException):
-            raise item
-        self.served.append(item)
-        try:
-            yield item
-        finally:
-            item.release()
-
-
-def picamera2_source(script, shape, granted="R16", **cfg):
-    cam = FakePicamera2(script, granted)
+def picamera2_source(script, buffer, md=None, granted="R16", versions=VERSIONS, cam_kw=None,
+                     **cfg):
+    cam = FakePicamera2(script, frame_stream(buffer, md or {}), granted=granted,
+                        **(cam_kw or {}))
     cfg = dataclasses.replace(CaptureConfig(), backend="picamera2", **cfg)
-    return Picamera2Source(cfg, shape, modules=(lambda num: cam, FakeMappedArray)), cam
+    first = buffer if isinstance(buffer, np.ndarray) else buffer[0]
+    rows, cols = first.shape[0], (first.shape[1] - 64) // 2
+    source = Picamera2Source(cfg, (rows, cols),
+                             modules=(lambda num: cam, FakeMappedArray, versions))
+    return source, cam
 
 
 def boot_ns(mono_ns: int) -> int:
     return mono_ns + time.clock_gettime_ns(time.CLOCK_BOOTTIME) - time.monotonic_ns()
 
 
+def frames_of(source, n):
+    """The first n items that are not Waiting, each checked while its buffer is valid."""
+    out = []
+    for item in source:
+        if isinstance(item, Waiting):
+            continue
+        out.append((item, item.image.copy() if isinstance(item, Frame) else None))
+        if len(out) == n:
+            break
+    return out
+
+
 def test_picamera2_frames_are_bit_exact_with_sensor_metadata(star10):
     t_end = time.monotonic_ns()
     md = {"SensorTimestamp": boot_ns(t_end), "ExposureTime": 20000, "AnalogueGain": 4.0,
           "FrameDuration": 100000}
-    script = [FakeRequest(r16_buffer(star10 + k, 6), md) for k in range(3)]
-    source, cam = picamera2_source(script, star10.shape, raw_shift=6)
-    frames = []
+    buffers = [r16_buffer(star10 + k, 6) for k in range(3)]
+    source, cam = picamera2_source(["frame"] * 3, buffers, md, raw_shift=6)
+    FakeMappedArray.writes.clear()
     with source:
-        for item in source:
-            assert isinstance(item, Frame)
-            np.testing.assert_array_equal(item.image, star10 + item.index)
-            frames.append(item)
-            if len(frames) == 3:
-                break
+        got = frames_of(source, 3)
+    for k, (_, pixels) in enumerate(got):
+        np.testing.assert_array_equal(pixels, star10 + k)
+    frames = [f for f, _ in got]
     assert all(f.image is frames[0].image for f in frames)   # one reused buffer
-    assert all(r.released for r in cam.served)
+    assert FakeMappedArray.writes == [False] * 3                # read-only mapping
+    assert cam.free_buffers == 4                                # every request released
     f = frames[0]
     assert (f.bit_depth, f.exposure_us, f.gain) == (10, 20000, 4.0)
     # mid-exposure = end - exposure/2 = t_end - 10 ms, on the monotonic clock
@@ -145,12 +99,13 @@ def test_picamera2_frames_are_bit_exact_with_sensor_metadata(star10):
     assert cam.closed
 
 
-def test_picamera2_asks_for_manual_raw_capture():
-    shape = (1300, 1600)
-    source, cam = picamera2_source([], shape, exposure_us=5000.0, gain=2.0, fps=10.0,
-                                   buffer_count=3)
+def test_picamera2_asks_for_manual_raw_capture_in_an_explicit_sensor_mode(star10):
+    source, cam = picamera2_source([], r16_buffer(star10, 6), exposure_us=5000.0, gain=2.0,
+                                   fps=10.0, buffer_count=3)
     source.open()
-    assert cam.config["raw"] == {"format": "R16", "size": (1600, 1300)}
+    rows, cols = star10.shape
+    assert cam.config["raw"] == {"format": "R16", "size": (cols, rows)}
+    assert cam.config["sensor"] == {"output_size": (cols, rows), "bit_depth": 10}
     assert cam.config["queue"] is False and cam.config["buffer_count"] == 3
     assert cam.config["controls"] == {"AeEnable": False, "ExposureTime": 5000,
                                       "AnalogueGain": 2.0,
@@ -160,35 +115,93 @@ def test_picamera2_asks_for_manual_raw_capture():
     source.close()
 
 
-def test_picamera2_refuses_the_compressed_pi5_format():
-    source, cam = picamera2_source([], (1300, 1600), granted="MONO_PISP_COMP1")
+def test_picamera2_refuses_the_compressed_pi5_format(star10):
+    source, cam = picamera2_source([], r16_buffer(star10, 6), granted="MONO_PISP_COMP1")
     with pytest.raises(CameraError, match="MONO_PISP_COMP1, a lossy compressed raw format"):
         source.open()
     assert cam.closed
 
 
-def test_picamera2_timeouts_become_errors_then_camera_lost(star10):
-    good = FakeRequest(r16_buffer(star10, 6), {"ExposureTime": 100, "AnalogueGain": 1.0})
-    script = [TimeoutError(), good, TimeoutError(), TimeoutError(), TimeoutError()]
-    source, _ = picamera2_source(script, star10.shape)
+@pytest.mark.parametrize("fail_in", ["configure", "start"])
+def test_picamera2_open_releases_the_camera_on_any_failure(star10, fail_in):
+    """Item 2: any exception after the camera was acquired closes it again."""
+    source, cam = picamera2_source([], r16_buffer(star10, 6), cam_kw={"fail_in": fail_in})
+    with pytest.raises(CameraError, match="camera configuration failed"):
+        source.open()
+    assert cam.closed
+    if fail_in == "start":
+        with pytest.raises(CameraError, match="is the startracker service running"):
+            picamera2_source([], r16_buffer(star10, 6), cam_kw={"fail_in": "start"})[0].open()
+
+
+def test_picamera2_a_late_frame_is_cancelled_not_leaked(star10):
+    """Item 2: a timed-out capture job must not take a later request nor block stop().
+
+    At 10 fps with timeout_s 0.5 a frame is late after 0.6 s, i.e. 3 slices of
+    0.25 s without a frame. Late frames here, then good ones: every buffer
+    comes back and close() returns.
+    """
+    late = ["nothing"] * 3
+    script = ["frame"] + late + ["frame"] + late + late + ["frame"] * 8
+    source, cam = picamera2_source(script, r16_buffer(star10, 6), fps=10.0, timeout_s=0.5)
     items = []
-    with pytest.raises(CameraError, match="no frame in 3 x 2 s; camera lost"):
+    with source:
+        for item in source:
+            items.append(type(item).__name__)
+            if items.count("Frame") == 6:
+                break
+    assert items == ["Frame", "Waiting", "Waiting", "FrameError", "Frame", "Waiting",
+                     "Waiting", "FrameError", "Waiting", "Waiting", "FrameError",
+                     "Frame", "Frame", "Frame", "Frame"]
+    assert cam.free_buffers == 4 and cam.closed and not cam._job_list
+
+
+def test_picamera2_three_late_frames_in_a_row_lose_the_camera(star10):
+    source, cam = picamera2_source(["nothing"] * 9, r16_buffer(star10, 6), fps=10.0,
+                                   timeout_s=0.5)
+    items = []
+    with pytest.raises(CameraError, match=r"no frame in 3 x 0.6 s; camera lost"):
         for item in source:
             items.append(item)
-    assert [type(i).__name__ for i in items] == ["FrameError", "Frame", "FrameError",
-                                                 "FrameError"]
-    assert items[0].reason == "no frame within 2 s"
+    errors = [i for i in items if isinstance(i, FrameError)]
+    assert [e.reason for e in errors] == ["no frame within 0.6 s"] * 2
+    source.close()
+    assert cam.closed                      # stop() was not stuck behind a stale job
+
+
+def test_picamera2_slow_frames_yield_waiting_and_are_not_late(star10):
+    """capture.fps 0.15: a frame every 6.7 s is waited for in 0.25 s slices, not timed out."""
+    script = (["nothing"] * 26 + ["frame"]) * 2
+    source, cam = picamera2_source(script, r16_buffer(star10, 6), fps=0.15)
+    items = [type(i).__name__ for _, i in zip(range(54), source, strict=False)]
+    assert items == (["Waiting"] * 26 + ["Frame"]) * 2
+    source.close()
 
 
 def test_picamera2_short_buffer_is_a_frame_error_and_the_request_is_released(star10):
-    short = FakeRequest(np.zeros((10, 10), np.uint8), {})
-    source, cam = picamera2_source([short, RuntimeError("device gone")], star10.shape)
-    iterator = iter(source)
-    item = next(iterator)
+    source, cam = picamera2_source(["frame"] * 2, np.zeros((10, 10 + 64), np.uint8))
+    source.shape = star10.shape
+    item = next(iter(source))
     assert isinstance(item, FrameError) and "too small" in item.reason
-    assert short.released
-    with pytest.raises(CameraError, match="capture failed: device gone"):
-        next(iterator)
+    assert cam.free_buffers == 4
+    source.close()
+
+
+@pytest.mark.parametrize("versions, problem", [
+    (("0.3.19", True), "too old"), (("0.3.25", False), None), (("0.3.26", True), None),
+    (("0.3.26", False), "sets ExposureTimeMode"), (("0.3.36", False), "0.3.20 .. 0.3.25"),
+    ((None, None), None)])
+def test_picamera2_and_libcamera_pairs(versions, problem):
+    """Item 12: the pinned pair, checked at open and by selftest."""
+    got = compatibility_problem(*versions)
+    assert (got is None) if problem is None else (problem in got)
+
+
+def test_picamera2_without_cancel_all_and_flush_is_refused(star10):
+    source, cam = picamera2_source([], r16_buffer(star10, 6), versions=(None, None),
+                                   cam_kw={"with_cancel": False})
+    with pytest.raises(CameraError, match="too old"):
+        source.open()
 
 
 def test_picamera2_missing_is_a_camera_error(monkeypatch):

@@ -24,7 +24,7 @@ def make_source(cfg: Config, paths: list[str] | None = None):
     if cap.backend == "picamera2":
         from tracker.capture.picamera2_source import Picamera2Source
 
-        return Picamera2Source(cap, shape)
+        return Picamera2Source(cap, shape, sensor_bit_depth=cfg.camera.bit_depth)
     if cap.backend == "v4l2":
         from tracker.capture.v4l2_source import V4L2Source
 
