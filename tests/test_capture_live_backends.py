@@ -1,10 +1,12 @@
 """picamera2 and V4L2 backends through their adapters, with a real frame behind fakes.
 
-The fakes stand in for picamera2.Picamera2/MappedArray and cv2.VideoCapture
-and serve a real star image (data/real/openstartracker/img0.png, scaled to
-10 bits) in the buffer layouts the Pi delivers. Pixels must come out
-bit-exact; times within 1 ms of the conversion done here independently
-(the BOOTTIME-MONOTONIC offset is read at two slightly different instants).
+The fakes stand in for picamera2 (tests/fake_picamera2.py: its job and request
+life cycle) and for the Pi 5's kernel (tests/fake_rp1_cfe.py: the rp1-cfe
+media graph, pads, buffers and sensor controls) and serve a real star image
+(data/real/openstartracker/img0.png, scaled to 10 bits) in the buffer layouts
+the Pi delivers. Pixels must come out bit-exact; picamera2 times within 1 ms
+of the conversion done here independently (the BOOTTIME-MONOTONIC offset is
+read at two slightly different instants).
 """
 
 import dataclasses
@@ -12,10 +14,10 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from fake_picamera2 import FakeMappedArray, FakePicamera2, frame_stream
+from fake_rp1_cfe import FakeKernel
 
 from tracker.capture.base import Frame, FrameError, Waiting
 from tracker.capture.imagefile import read_image
@@ -214,93 +216,131 @@ def test_picamera2_missing_is_a_camera_error(monkeypatch):
 # ------------------------------------------------------------------------------- V4L2
 
 
-class FakeCapture:
-    """cv2.VideoCapture stand-in: negotiates like OpenCV, serves a script of frames."""
-
-    def __init__(self, script, fourcc="Y16 ", size=None, opened=True):
-        self.script, self.fourcc, self.size, self.opened = list(script), fourcc, size, opened
-        self.props = {}
-        self.released = False
-
-    def isOpened(self):
-        return self.opened
-
-    def set(self, prop, value):
-        self.props[prop] = value
-        return True
-
-    def get(self, prop):
-        if prop == cv2.CAP_PROP_FOURCC:
-            return float(cv2.VideoWriter_fourcc(*self.fourcc))
-        if prop == cv2.CAP_PROP_FRAME_WIDTH:
-            return float(self.size[1] if self.size else self.props[prop])
-        if prop == cv2.CAP_PROP_FRAME_HEIGHT:
-            return float(self.size[0] if self.size else self.props[prop])
-        if prop == cv2.CAP_PROP_POS_MSEC:
-            return self.stamp_ms
-        return 0.0
-
-    def grab(self):
-        if not self.script:
-            return False
-        self.current = self.script.pop(0)
-        return self.current is not None
-
-    def retrieve(self, image=None):
-        self.stamp_ms = time.monotonic_ns() / 1e6
-        np.copyto(image, self.current)
-        return True, image
-
-    def release(self):
-        self.released = True
+def v4l2_source(kernel, shape=(1300, 1600), **cfg):
+    cfg = dataclasses.replace(CaptureConfig(), backend="v4l2", device="0", **cfg)
+    return V4L2Source(cfg, shape, io=kernel)
 
 
-def v4l2_source(cap, shape, **cfg):
-    cfg = dataclasses.replace(CaptureConfig(), backend="v4l2", device="/dev/video0", **cfg)
-    return V4L2Source(cfg, shape, opener=lambda dev, api: cap)
+@pytest.fixture(name="field10", scope="module")
+def fixture_field10(star10):
+    """A real star field on the OV2311's 1600 x 1300 (10-bit), distinct per frame k."""
+    image = np.zeros((1300, 1600), np.uint16)
+    image[:1040, :1392] = star10
+    return [(image + k).clip(0, 1023).astype(np.uint16) for k in range(3)]
 
 
-def test_v4l2_y16_frames_are_shifted_and_bit_exact(star10):
-    cap = FakeCapture([star10 << 6, (star10 + 1) << 6])
-    source = v4l2_source(cap, star10.shape, raw_shift=6)
-    with source:
-        iterator = iter(source)
-        for k in range(2):
-            item = next(iterator)       # the image is a reused buffer: check it now
-            np.testing.assert_array_equal(item.image, star10 + k)
-            assert item.bit_depth == 10
-    assert cap.props[cv2.CAP_PROP_FOURCC] == cv2.VideoWriter_fourcc(*"Y16 ")
-    assert cap.props[cv2.CAP_PROP_CONVERT_RGB] == 0
-    assert cap.released and not source.set_controls(1000, 2.0)
+def stamped(images, t0=10**12, period=10**8):
+    return [(image, t0 + k * period) for k, image in enumerate(images)]
 
 
-def test_v4l2_grey_is_8bit(star10):
-    grey = (star10 >> 2).astype(np.uint8)
-    cap = FakeCapture([grey], fourcc="GREY")
-    source = v4l2_source(cap, star10.shape, raw_format="R8")
-    item = next(iter(source))
-    np.testing.assert_array_equal(item.image, grey)
-    assert item.bit_depth == 8
+@pytest.mark.parametrize("raw_format, depth", [("R16", 10), ("R10_CSI2P", 10), ("R8", 8)])
+def test_v4l2_sets_up_rp1_cfe_and_streams_bit_exact(field10, raw_format, depth):
+    """Item 11: links, pad formats, controls and buffers as rp1-cfe needs them.
+
+    libcamera left its own links enabled (csi2 -> pisp-fe, embedded data, ...):
+    the CFE would not start the sensor until those nodes stream too, so the
+    source must disable them.
+    """
+    kernel = FakeKernel(stamped(field10), ["frame"] * 3, libcamera_links=True)
+    source = v4l2_source(kernel, raw_format=raw_format, raw_shift=6, exposure_us=20000.0,
+                         gain=4.0, fps=10.0)
+    got = frames_of(source, 3)
+    for k, (frame, pixels) in enumerate(got):
+        want = field10[k] if depth == 10 else (field10[k] >> 2).astype(np.uint8)
+        np.testing.assert_array_equal(pixels, want)
+        assert frame.bit_depth == depth
+        # the buffer's CLOCK_MONOTONIC stamp (readout start) minus half the exposure
+        assert frame.t_ns == 10**12 + k * 10**8 - 10_000_000
+    enabled = {(a, b) for a, b, flags in kernel.links if flags & 1}
+    assert enabled == {((10, 0), (1, 0)), ((1, 4), (12, 0))}
+    code = 0x2001 if depth == 8 else 0x200A
+    assert kernel.pad_fmt[(10, 0)] == kernel.pad_fmt[(1, 0)] == kernel.pad_fmt[(1, 4)] == \
+        (1600, 1300, code)
+    # line time (1600 + 400) / 200 MHz = 10 us: 20 ms = 2000 lines; 10 fps = 10000 lines
+    assert dict(kernel.ctrl_log) == {"V4L2_CID_EXPOSURE": 2000,
+                                     "V4L2_CID_ANALOGUE_GAIN": 400,
+                                     "V4L2_CID_VBLANK": 10000 - 1300}
+    assert got[0][0].exposure_us == pytest.approx(20000.0) and got[0][0].gain == 4.0
+    source.close()
+    assert not kernel.fds and not kernel.streaming
 
 
-def test_v4l2_refuses_packed_palette_and_wrong_size():
-    with pytest.raises(CameraError, match="granted pixel format 'Y10P'"):
-        v4l2_source(FakeCapture([], fourcc="Y10P"), (1300, 1600)).open()
-    with pytest.raises(CameraError, match="granted 1280x720, expected 1600x1300"):
-        v4l2_source(FakeCapture([], size=(720, 1280)), (1300, 1600)).open()
-    with pytest.raises(CameraError, match="cannot open V4L2 device '/dev/video0'"):
-        v4l2_source(FakeCapture([], opened=False), (1300, 1600)).open()
+def test_v4l2_long_exposure_lengthens_the_frame_and_is_clamped(field10):
+    kernel = FakeKernel(stamped(field10), ["frame"])
+    source = v4l2_source(kernel, fps=30.0, exposure_us=20000.0)
+    source.open()
+    assert source.set_controls(150_000.0, 99.0)        # 15000 lines > a 30 fps frame
+    values = dict(kernel.ctrl_log[-3:])        # VBLANK first, then EXPOSURE and GAIN
+    assert values["V4L2_CID_EXPOSURE"] == 15000
+    assert values["V4L2_CID_VBLANK"] == 15000 + 4 - 1300
+    assert values["V4L2_CID_ANALOGUE_GAIN"] == 1600       # the control's maximum
+    source.close()
 
 
-def test_v4l2_failed_grabs_become_errors_then_camera_lost(star10):
-    cap = FakeCapture([None, star10 << 6, None, None, None])
-    source = v4l2_source(cap, star10.shape)
+def test_v4l2_no_sensor_is_a_camera_error_naming_what_was_looked_at():
+    with pytest.raises(CameraError, match=r"no rp1-cfe media device with a sensor on csi2 "
+                                          r"\(number '0'; looked at /dev/media0"):
+        v4l2_source(FakeKernel(sensor_present=False)).open()
+
+
+def test_v4l2_a_format_the_sensor_refuses_is_reported(field10):
+    with pytest.raises(CameraError, match="rp1-cfe delivers R16, R10_CSI2P, R8"):
+        v4l2_source(FakeKernel(), raw_format="R10").open()
+    kernel = FakeKernel()
+    kernel.pad_fmt[(10, 0)] = (1600, 1300, 0x200A)
+    with pytest.raises(CameraError, match=r"asked for 1280x720 code 0x200a, granted 1600x1300"):
+        v4l2_source(kernel, shape=(720, 1280)).open()
+    assert not kernel.fds
+
+
+def test_v4l2_streamon_failure_says_why(field10, monkeypatch):
+    """Another program changing csi2's source pad after our set-up: EPIPE, said plainly."""
+    kernel = FakeKernel()
+    source = v4l2_source(kernel)
+    real = kernel._video
+
+    def pad_changed(name, arg):
+        if name == "VIDIOC_REQBUFS":
+            kernel.pad_fmt[(1, 4)] = (1600, 1298, kernel.pad_fmt[(1, 4)][2])
+        return real(name, arg)
+
+    monkeypatch.setattr(kernel, "_video", pad_changed)
+    with pytest.raises(CameraError, match="STREAMON failed: the pads' formats do not match"):
+        source.open()
+    assert not kernel.fds
+
+
+def test_v4l2_slow_late_and_broken_frames(field10):
+    """Waiting while no frame; a late one is a FrameError; three late in a row lose it."""
+    kernel = FakeKernel(stamped(field10), ["nothing"] * 3 + ["frame"] + ["nothing"] * 20)
+    source = v4l2_source(kernel, fps=10.0, timeout_s=0.5)
     items = []
-    with pytest.raises(CameraError, match="in 3 tries; camera lost"):
+    with pytest.raises(CameraError, match=r"no frame in 3 x 0.6 s; camera lost"):
         for item in source:
-            items.append(item)
-    assert [type(i).__name__ for i in items] == ["FrameError", "Frame", "FrameError",
-                                                 "FrameError"]
+            items.append(type(item).__name__)
+    # 10 fps + 0.5 s: late after 0.6 s, i.e. in the third slice of 0.25 s
+    assert items == ["Waiting"] * 2 + ["FrameError", "Frame"] + \
+        (["Waiting"] * 2 + ["FrameError"]) * 2 + ["Waiting"] * 2
+    source.close()
+
+
+def test_v4l2_a_buffer_flagged_as_error_is_a_frame_error_and_requeued(field10, monkeypatch):
+    kernel = FakeKernel(stamped(field10), ["frame"] * 3)
+    source = v4l2_source(kernel)
+    real = kernel._video
+
+    def flag_first(name, arg):
+        out = real(name, arg)
+        if name == "VIDIOC_DQBUF" and arg.sequence == 0:
+            arg.flags |= 0x40
+        return out
+
+    monkeypatch.setattr(kernel, "_video", flag_first)
+    got = frames_of(source, 3)
+    assert [type(f).__name__ for f, _ in got] == ["FrameError", "Frame", "Frame"]
+    assert "flagged as an error" in got[0][0].reason
+    assert sum(b[1] == "queued" for b in kernel.buffers) == len(kernel.buffers) - 0
+    source.close()
 
 
 @pytest.mark.hardware

@@ -8,9 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fake_rp1_cfe import FakeKernel
 
-from tracker.capture import Frame, ReplaySource
+from tracker.capture import Frame, ReplaySource, v4l2_source
 from tracker.cli import main
+from tracker.commands import selftest
 from tracker.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,7 +99,7 @@ def test_record_disk_space_guard_stops_cleanly(tmp_path, caplog):
 
 def test_selftest_here_reports_no_camera_and_checks_data(capsys, monkeypatch):
     monkeypatch.setitem(__import__("sys").modules, "picamera2", None)
-    code = main(["selftest", "--backend", "picamera2", "--skip", "uart"])
+    code = main(["selftest", "--backend", "picamera2", "--skip", "uart", "service"])
     out = capsys.readouterr().out
     assert code == 1
     assert "FAIL camera    no camera (picamera2): picamera2 is not importable" in out
@@ -105,10 +107,55 @@ def test_selftest_here_reports_no_camera_and_checks_data(capsys, monkeypatch):
     assert "SKIP uart      skipped (--skip)" in out
 
 
+def test_selftest_says_the_running_service_holds_the_camera_and_uart(tmp_path, capsys,
+                                                                     monkeypatch):
+    """Item 14: selftest and a running service contend for the camera and the UART."""
+    monkeypatch.setattr(selftest, "service_running", lambda: True)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("link: {port: 'loop://'}\n")
+    code = main(["selftest", "--config", str(cfg), "--backend", "v4l2", "--loopback",
+                 "--skip", "data", "picamera2"])
+    out = capsys.readouterr().out
+    assert code == 1
+    assert "WARN service   the startracker.service is running and holds the camera" in out
+    assert "FAIL camera    v4l2: the startracker.service is running" in out
+    assert "FAIL uart      loop://: the startracker.service is running" in out
+
+
+def test_selftest_v4l2_reports_the_pipeline_and_the_raw_shift(capsys, monkeypatch):
+    """Item 11: the V4L2 set-up is part of selftest (here on the simulated rp1-cfe)."""
+    image = np.full((1300, 1600), 64, np.uint16)
+    frames = [(image, 10**12 + k * 10**8) for k in range(6)]
+    monkeypatch.setattr(v4l2_source, "DeviceIO",
+                        lambda: FakeKernel(frames, ["frame"] * 6, libcamera_links=True))
+    monkeypatch.setattr(selftest, "service_running", lambda: False)
+    main(["selftest", "--backend", "v4l2", "--skip", "uart", "data", "cpu_temp", "throttle"])
+    out = capsys.readouterr().out
+    line = next(x for x in out.splitlines() if x[5:11] == "camera")
+    assert line.startswith("PASS camera    v4l2: /dev/media2: arducam-pivariety 10-000c -> csi2"
+                           " -> rp1-cfe-csi2_ch0 (/dev/video0), 1600x1300 Y16")
+    assert "at 10.0 fps (buffer times)" in line
+    # the fake CFE writes Y16 words high-aligned (<< 6): 64 << 6 = 4096 > 1023
+    assert "largest word 4096 > 1023: 10-bit data in the high bits, capture.raw_shift 6" in line
+    assert "but it is" not in line and "frame(s) lost" not in line
+    assert "no EXPOSURE/ANALOGUE_GAIN" not in line
+
+
+@pytest.mark.parametrize("top, configured, ok, need", [(1023, 0, True, 0), (1024, 0, False, 6),
+                                                       (4096, 6, True, 6), (900, 6, False, 0)])
+def test_raw_shift_rule_is_the_sensor_full_scale(top, configured, ok, need):
+    """Item 14: a word above 1023 (10-bit sensor) means high-aligned data."""
+    image = np.zeros((4, 4), np.uint16)
+    image[1, 2] = top
+    got_ok, text = selftest.raw_shift_advice(image, 10, configured)
+    assert got_ok == ok and f"capture.raw_shift {need}" in text
+
+
 def test_selftest_uart_loopback_over_a_loop_url(tmp_path, capsys):
     cfg = tmp_path / "c.yaml"
     cfg.write_text("link: {port: 'loop://'}\n")
-    main(["selftest", "--config", str(cfg), "--loopback", "--skip", "camera", "data"])
+    main(["selftest", "--config", str(cfg), "--loopback", "--skip", "camera", "data",
+          "service", "picamera2"])
     assert "PASS uart      loop:// loopback at 921600 baud: 256 bytes intact" in \
         capsys.readouterr().out
 

@@ -330,10 +330,11 @@ class CaptureConfig:
     loop: bool = knob(False, "replay: start again after the last file")
     fps: float = knob(0.0, "frames per second; 0 = replay as fast as possible, live: the "
                       "longest frame the exposure allows", "Hz", min=0.0, max=1000.0)
-    device: str = knob("0", "live: picamera2 camera number, or a V4L2 node (/dev/videoN or "
-                       "its number)")
-    raw_format: str = knob("R16", "picamera2: raw format asked for; the granted one is "
-                           "checked and *_PISP_COMP* (lossy) refused",
+    device: str = knob("0", "live: picamera2 camera number; v4l2: which rp1-cfe with a sensor "
+                       "(its number among them, or /dev/mediaN)")
+    raw_format: str = knob("R16", "raw format asked for; picamera2: the granted one is "
+                           "checked and *_PISP_COMP* (lossy) refused; v4l2: R16 = Y16 (the CFE "
+                           "unpacks), R10_CSI2P = Y10P, R8 = GREY",
                            choices=("R16", "R10", "R8", "R10_CSI2P", "R8_CSI2P"))
     raw_shift: int = knob(6, "right shift applied to 16-bit raw words (6: 10-bit data in the "
                           "high bits of R16, unverified on the Pi: `tracker selftest` says "
@@ -347,13 +348,17 @@ class CaptureConfig:
     gain: float = knob(4.0, "starting analogue gain", "x", min=1.0, max=64.0)
     gain_max: float = knob(16.0, "exposure control: highest analogue gain", "x",
                            min=1.0, max=64.0)
+    gain_code_per_x: float = knob(100.0, "v4l2: the sensor's ANALOGUE_GAIN control units "
+                                  "per 1x gain (arducam-pivariety: 100, as its libcamera "
+                                  "helper)", "code", min=1.0, max=1e6)
     auto_exposure: bool = knob(True, "adjust exposure and gain to keep stars detectable "
                                "and unsaturated")
     target_peak: float = knob(0.5, "exposure control: wanted brightest-star peak as a "
                               "fraction of full scale", "", min=0.05, max=0.95)
     buffer_count: int = knob(4, "live: camera buffers queued", min=2, max=16)
-    timeout_s: float = knob(2.0, "live: longest wait for a frame before the camera counts "
-                            "as timed out", "s", min=0.05, max=60.0)
+    timeout_s: float = knob(2.0, "live: a frame later than its period plus this is lost "
+                            "(camera_timeout); three in a row and the camera is reopened",
+                            "s", min=0.05, max=60.0)
 
 
 @dataclass(frozen=True)

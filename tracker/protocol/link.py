@@ -347,9 +347,11 @@ class Link:
             self._count(f"dropped_full_{name}")
 
     def _open_serial(self) -> serial.SerialBase:
+        # exclusive: an flock on the device, so a second user (tracker selftest, a
+        # terminal program) is refused with a clear error instead of stealing bytes
         return serial.serial_for_url(self.cfg.port, baudrate=self.cfg.baudrate,
                                      timeout=self.cfg.read_timeout_s,
-                                     write_timeout=self.cfg.write_timeout_s)
+                                     write_timeout=self.cfg.write_timeout_s, exclusive=True)
 
     def _port_failed(self, port: serial.SerialBase, exc: Exception) -> None:
         with self._port_lock:
