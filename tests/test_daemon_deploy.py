@@ -43,13 +43,47 @@ def test_unit_file_verifies_without_any_warning(tmp_path):
 def test_unit_file_has_the_required_settings():
     lines = set(UNIT.read_text().splitlines())
     for needed in ("Type=notify", "Restart=on-failure", "User=startracker",
-                   "SupplementaryGroups=video dialout", "ProtectSystem=strict",
-                   "ProtectHome=yes", "PrivateTmp=yes", "NoNewPrivileges=yes",
+                   "RestartPreventExitStatus=2",                 # item 13: exit 2 is final
+                   "SupplementaryGroups=video dialout i2c", "DeviceAllow=char-i2c rw",
+                   "RestrictNamespaces=user net",                # libcamera's IPA sandbox
+                   "ProtectSystem=strict", "ProtectHome=yes", "PrivateTmp=yes",
+                   "NoNewPrivileges=yes", "CapabilityBoundingSet=",
                    "DevicePolicy=closed", "DeviceAllow=char-video4linux rw",
                    "DeviceAllow=char-media rw", "DeviceAllow=char-dma_heap rw",
-                   "DeviceAllow=char-ttyAMA rw", "StartLimitBurst=5", "WatchdogSec=5s"):
+                   "DeviceAllow=char-ttyAMA rw", "StartLimitBurst=5", "WatchdogSec=5s",
+                   "CPUAffinity=1-3"):
         assert needed in lines, needed
-    assert not any(line.startswith("PrivateDevices=") for line in lines)
+    assert any(line.startswith("MemoryMax=") for line in lines)
+    assert not any(line.startswith(("PrivateDevices=", "RestrictNamespaces=yes"))
+                   for line in lines)
+
+
+def test_every_directive_of_the_unit_is_explained():
+    """Each block of directives has a comment above it (item 13)."""
+    previous = ""
+    for number, line in enumerate(UNIT.read_text().splitlines(), 1):
+        directive = "=" in line and not line.startswith("#")
+        if directive and not (previous.startswith("#") or "=" in previous):
+            raise AssertionError(f"line {number}: {line!r} has no comment above its block")
+        previous = line
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze absent")
+def test_unit_exposure_score_is_at_most_2_5(tmp_path):
+    """`systemd-analyze security` scores the shipped unit 2.5 or less (item 13)."""
+    unit = tmp_path / "startracker.service"
+    unit.write_text(UNIT.read_text())
+    out = subprocess.run(["systemd-analyze", "security", "--offline=yes", str(unit)],
+                         capture_output=True, text=True, timeout=60, cwd=tmp_path).stdout
+    score = float(out.split("Overall exposure level for startracker.service:")[1].split()[0])
+    print(f"systemd-analyze security: {score}")
+    assert score <= 2.5
+
+
+def test_cmdline_notes_do_not_isolate_the_units_cores():
+    """Item 14: isolcpus= would take the unit's CPUAffinity cores out of load balancing."""
+    notes = (ROOT / "firmware_config" / "cmdline.txt.md").read_text()
+    assert "isolcpus=2,3" not in notes.replace("`isolcpus=`", "")
 
 
 def test_shipped_pi_config_loads():

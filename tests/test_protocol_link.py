@@ -111,7 +111,7 @@ def test_telemetry_through_pyserial_decodes_the_same_in_both_decoders(pty):
     assert [p.name for p in ours].count("CENTROIDS") == 6      # 50 stars = 40 + 10, x3
     assert len(ours) == len(ref) == 3 * 4 + 1
     for p, r in zip(ours, ref, strict=True):
-        assert (p.id, p.seq, p.frame[10:-2]) == (r["apid"], r["seq"], r["payload"])
+        assert (p.id, p.seq, p.wire[10:-2]) == (r["apid"], r["seq"], r["payload"])
         for k, v in r["values"].items():
             assert p.values[k] == v or (math.isnan(v) and math.isnan(p.values[k]))
         if p.id == MsgId.CENTROIDS:

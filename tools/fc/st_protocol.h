@@ -58,15 +58,15 @@ enum st_attitude_flag {
 
 /* STATUS.last_error: the latest fault the tracker survived. */
 enum st_error_code {
-    ST_ERR_NONE = 0,
-    ST_ERR_FRAME_UNREADABLE = 1,
-    ST_ERR_CAMERA_TIMEOUT = 2,
-    ST_ERR_CAMERA_LOST = 3,
-    ST_ERR_STAGE_ERROR = 4,
-    ST_ERR_LINK_ERROR = 5,
-    ST_ERR_RX_REJECT = 6,
-    ST_ERR_TX_DROP = 7,
-    ST_ERR_LINK_INTERNAL = 8,
+    ST_ERR_NONE = 0, /* no fault since the service started */
+    ST_ERR_FRAME_UNREADABLE = 1, /* a frame arrived broken (bad buffer, corrupt file); skipped */
+    ST_ERR_CAMERA_TIMEOUT = 2, /* no frame within the frame period + capture.timeout_s */
+    ST_ERR_CAMERA_LOST = 3, /* the camera is absent or failed; closed and reopened every service.retry_max_s at most */
+    ST_ERR_STAGE_ERROR = 4, /* detection or identification failed on a frame; that frame dropped */
+    ST_ERR_LINK_ERROR = 5, /* the serial port failed or would not open; reopened with backoff */
+    ST_ERR_RX_REJECT = 6, /* an FC packet was dropped or NACKed (header, CRC, id, length, range) */
+    ST_ERR_TX_DROP = 7, /* a telemetry packet or reply was shed (its queue full, or stale) */
+    ST_ERR_LINK_INTERNAL = 8, /* the link's own code failed while serving the FC; caught, the link goes on */
 };
 
 #define ST_ATTITUDE_SIZE 53u

@@ -15,9 +15,9 @@ from pathlib import Path
 
 from tracker.protocol.budget import (
     bytes_per_second,
-    centroid_frame_bytes,
-    frame_bytes,
+    centroids_bytes,
     load_bytes_per_second,
+    packet_bytes,
 )
 from tracker.protocol.framing import OVERHEAD
 from tracker.protocol.messages import (
@@ -67,19 +67,19 @@ def _message_section(m: MessageDef) -> list[str]:
                   f"Payload: {m.min_size} + {m.item_size} x count bytes "
                   f"({m.min_size} .. {m.max_size}).", ""]
     else:
-        lines += [f"Payload: {m.min_size} bytes; frame: {m.min_size + OVERHEAD} bytes.", ""]
+        lines += [f"Payload: {m.min_size} bytes; packet: {m.min_size + OVERHEAD} bytes.", ""]
     return lines
 
 
 def _ids() -> str:
-    rows = ["| id (APID) | name | dir | payload bytes | frame bytes | queue class |",
+    rows = ["| id (APID) | name | dir | payload bytes | packet bytes | queue class |",
             "|---|---|---|---:|---:|---|"]
     for m in MESSAGES:
         size = (f"{m.min_size}" if not m.item else f"{m.min_size} .. {m.max_size}")
-        frame = (f"{m.min_size + OVERHEAD}" if not m.item
-                 else f"{m.min_size + OVERHEAD} .. {m.max_size + OVERHEAD}")
+        packet = (f"{m.min_size + OVERHEAD}" if not m.item
+                  else f"{m.min_size + OVERHEAD} .. {m.max_size + OVERHEAD}")
         pri = "-" if m.priority is None else str(m.priority)
-        rows.append(f"| 0x{m.id:03X} | {m.name} | {m.direction.name} | {size} | {frame} | "
+        rows.append(f"| 0x{m.id:03X} | {m.name} | {m.direction.name} | {size} | {packet} | "
                     f"{pri} |")
     return "\n".join(rows)
 
@@ -99,12 +99,12 @@ def _enums() -> str:
 
 
 def _budget() -> str:
-    att, st = frame_bytes(MsgId.ATTITUDE), frame_bytes(MsgId.STATUS)
+    att, st = packet_bytes(MsgId.ATTITUDE), packet_bytes(MsgId.STATUS)
     rows = [f"Usable bytes per second = baud / 10 (8N1) x {FRACTION} (bandwidth_fraction). "
-            f"ATTITUDE frame {att} B, STATUS {st} B, CENTROIDS for n stars "
-            f"= {frame_bytes(MsgId.CENTROIDS)} B per part of up to {MAX_STARS_PER_PACKET} "
-            f"+ {frame_bytes(MsgId.CENTROIDS, 1) - frame_bytes(MsgId.CENTROIDS)} B per star "
-            f"(48 stars: {centroid_frame_bytes(48)} B).", "",
+            f"ATTITUDE packet {att} B, STATUS {st} B, CENTROIDS for n stars "
+            f"= {packet_bytes(MsgId.CENTROIDS)} B per part of up to {MAX_STARS_PER_PACKET} "
+            f"+ {packet_bytes(MsgId.CENTROIDS, 1) - packet_bytes(MsgId.CENTROIDS)} B per star "
+            f"(48 stars: {centroids_bytes(48)} B).", "",
             "| baud | usable B/s | ATTITUDE alone, max Hz | CENTROIDS 48 stars alone, max Hz "
             "| ATT 30 Hz + STATUS 1 Hz + CENTROIDS 48 stars at | load |",
             "|---:|---:|---:|---:|---|---:|"]
@@ -113,7 +113,7 @@ def _budget() -> str:
         for cen_hz in (1.0, 10.0, 30.0):
             load = load_bytes_per_second(30.0, cen_hz, 1.0, 48)
             rows.append(f"| {baud} | {usable:.0f} | {usable / att:.0f} | "
-                        f"{usable / centroid_frame_bytes(48):.1f} | {cen_hz:g} Hz | "
+                        f"{usable / centroids_bytes(48):.1f} | {cen_hz:g} Hz | "
                         f"{100 * load / usable:.0f} % |")
     return "\n".join(rows)
 
@@ -336,7 +336,7 @@ def render_c_header() -> str:
     out += [f"    ST_ATT_{e.name} = {int(e)}," for e in AttitudeFlag]
     out += ["};", "", "/* STATUS.last_error: the latest fault the tracker survived. */",
             "enum st_error_code {"]
-    out += [f"    ST_ERR_{e.name} = {int(e)}," for e in ErrorCode]
+    out += [f"    ST_ERR_{e.name} = {int(e)}, /* {ERROR_MEANING[e]} */" for e in ErrorCode]
     out += ["};", ""]
     for m in MESSAGES:
         out.append(f"#define ST_{m.name}_SIZE {m.min_size}u")

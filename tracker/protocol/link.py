@@ -460,7 +460,7 @@ class Link:
     def _obey(self, packet: Packet) -> None:
         self._count("commands")
         try:
-            code = Reason(self._apply(packet.id, packet.values, len(packet.frame)))
+            code = Reason(self._apply(packet.id, packet.values, len(packet.wire)))
         except Exception as exc:   # a fault in the daemon's handler must not stop the link
             self._internal_error(f"command {packet.name}", exc)
             code = Reason.INTERNAL
