@@ -82,7 +82,13 @@ def test_mutated_frames_never_crash_and_good_ones_survive(data):
     pos = hit * len(frames[0]) + data.draw(st.integers(0, len(frames[0]) - 1))
     stream[pos] ^= data.draw(st.integers(1, 255))
     got, dec = _decode([bytes(stream)])
-    assert [p.wire for p in got] == frames[:hit] + frames[hit + 1:]
+    survivors = frames[:hit] + frames[hit + 1:]
+    if [p.wire for p in got] != survivors:
+        # A corrupted length byte can claim a span whose last two bytes happen to be
+        # its CRC (1 in 65536; hypothesis found pos 9 ^ 196): the span is consumed and,
+        # its payload length not ATTITUDE's, dropped as WRONG_LENGTH. Never delivered.
+        assert {p.wire for p in got} <= set(survivors)
+        assert dec.counters["wrong_length"] + dec.counters["unknown_id"] == 1
 
 
 def test_false_sync_marker_claiming_a_long_frame_does_not_hide_the_next_one():

@@ -13,7 +13,7 @@ from tracker.config import LinkConfig
 from tracker.protocol.decoder import StreamDecoder
 from tracker.protocol.encoder import Encoder
 from tracker.protocol.link import Link, OutputGate
-from tracker.protocol.messages import BY_ID, Direction, Mode, MsgId, Reason, saturate
+from tracker.protocol.messages import BY_ID, AttitudeFlag, Direction, Mode, MsgId, Reason, saturate
 
 STATUS = {
     "uptime_s": 7, "frame_rate_hz": 29.5, "exposure_us": 20000, "gain": 2.0,
@@ -222,3 +222,22 @@ def test_saturate_clamps_each_integer_to_its_wire_type():
     assert got == {"link_reopens": 0xFFFF, "mode": 9, "gain": -1.5, "frames": 0}
     assert BY_ID[MsgId.STATUS].pack(saturate(MsgId.STATUS, dict(
         STATUS, frames=2**33, link_drops=1, link_reopens=2**20, rx_rejects=0)))
+
+
+def test_only_advertised_attitude_flags_are_ever_sent(pty):
+    """Item 10: PREDICTED was advertised and never set; every flag in the ICD is one the
+    link can send, and a caller cannot set VALID/RATE_VALID or any other bit itself."""
+    master, path = pty
+    with Link(_cfg(path, queue_attitude=8), Handler()) as link:
+        _open(link)
+        for k, (q, rate) in enumerate(((None, None), ([1.0, 0, 0, 0], None),
+                                       ([1.0, 0, 0, 0], [0.1, 0.2, 0.3]))):
+            link.gate.set_rate(MsgId.ATTITUDE, 100.0)
+            link.send_attitude(frame_id=k, t_ns=k, q=q, sigma_cross_arcsec=1.0,
+                               sigma_roll_arcsec=1.0, matched=5, mode=Mode.TRACKING,
+                               flags=0xFFFF, rate_dps=rate)
+        got = _collect(master, lambda ps: len(ps) >= 3)
+    flags = [p.values["flags"] for p in got]
+    assert flags == [AttitudeFlag.TIME_SYNCED, AttitudeFlag.TIME_SYNCED | AttitudeFlag.VALID,
+                     AttitudeFlag.TIME_SYNCED | AttitudeFlag.VALID | AttitudeFlag.RATE_VALID]
+    assert {f.name for f in AttitudeFlag} == {"VALID", "RATE_VALID", "TIME_SYNCED"}

@@ -225,7 +225,7 @@ class MessageDef:
                 raise ValueError(f"{self.name}: {n} items, at most {self.max_items}")
             vals[self.count_field] = n
         try:
-            head = self.head.pack(*(vals[f.name] for f in self.fields))
+            head = self.head.pack(*[vals[f.name] for f in self.fields])
         except KeyError as exc:
             raise ValueError(f"{self.name}: missing field {exc.args[0]}") from None
         except struct.error as exc:
