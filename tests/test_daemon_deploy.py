@@ -121,6 +121,22 @@ def test_record_writes_frames_replay_reads_back_exactly(tmp_path, fmt):
         assert frame.bit_depth == 10
 
 
+def test_record_skips_a_live_sources_waiting_items(tmp_path, monkeypatch):
+    from daemon_fakes import FakeSource
+
+    from tracker.capture.base import Waiting
+    from tracker.commands import record
+
+    image = np.full((1300, 1600), 100, np.uint16)
+    script = [Waiting(0.25), Frame(0, "a", image, 10, 5), Waiting(0.25), Waiting(0.5),
+              Frame(1, "b", image, 10, 6)]
+    monkeypatch.setattr(record, "make_source", lambda cfg, paths: FakeSource(script))
+    out = tmp_path / "rec"
+    assert main(["record", "--out", str(out), "--frames", "2", "--min-free-mb", "1"]) == 0
+    lines = (out / "frames.jsonl").read_text().splitlines()
+    assert [json.loads(line)["t_ns"] for line in lines] == [5, 6]
+
+
 def test_record_disk_space_guard_stops_cleanly(tmp_path, caplog):
     folder, _ = frames_dir(tmp_path, 1)
     free_mb = shutil.disk_usage(tmp_path).free / 2**20

@@ -29,7 +29,7 @@ import numpy as np
 
 from tracker.board import cpu_temperature_c
 from tracker.capture.backends import make_source
-from tracker.capture.base import FrameError
+from tracker.capture.base import FrameError, Waiting
 from tracker.capture.live import CameraError
 from tracker.config import Config, UserError
 
@@ -88,6 +88,8 @@ def run(args, cfg: Config) -> int:
             for item in source:
                 if stop or (args.frames and saved >= args.frames):
                     break
+                if isinstance(item, Waiting):     # a live camera between frames
+                    continue
                 seen += 1
                 if (seen - 1) % max(args.every, 1):
                     continue
