@@ -119,7 +119,7 @@ def test_huge_values_are_shown_cut_short(tmp_path):
      "capture.exposure_us: found 150000, more than capture.exposure_max_us (100000)"),
     ("capture:\n  gain: 20\n", "capture.gain: found 20, more than capture.gain_max (16)"),
     ("service:\n  retry_initial_s: 10\n",
-     "service.retry_initial_s: found 10, more than service.retry_max_s (8)"),
+     "service.retry_initial_s: found 10, more than service.retry_max_s (1)"),
     ("link:\n  reopen_backoff_max_s: 0.1\n",
      "link.reopen_backoff_s: found 0.5, more than link.reopen_backoff_max_s (0.1)"),
     ("identify:\n  min_matched: 50\n",

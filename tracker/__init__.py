@@ -6,7 +6,8 @@ Each frame flows one way::
 
 * :mod:`tracker.capture` delivers frames (replayed files; picamera2 or V4L2
   on the Pi) as :class:`~tracker.capture.base.Frame` or
-  :class:`~tracker.capture.base.FrameError`.
+  :class:`~tracker.capture.base.FrameError`
+  (``tracker.capture.backends.make_source(cfg)`` picks the backend).
 * :mod:`tracker.detect` finds stars with a fixed-memory detector
   (``make_detector(cfg.detect, shape, bit_depth).detect(image)``).
 * :mod:`tracker.identify` identifies them lost in space or by tracking and
@@ -14,8 +15,11 @@ Each frame flows one way::
   :mod:`tracker.attitude` holds the conventions and Wahba's problem.
 * :mod:`tracker.protocol` frames packets for the flight computer, as
   ``docs/protocol.md`` specifies, and runs the serial link.
-* :mod:`tracker.pipeline` chains detect and identify for one frame;
-  :mod:`tracker.service` is the daemon around it.
+* :mod:`tracker.pipeline` chains detect and identify for one frame (shared
+  by ``tracker replay`` and the daemon).
+* :mod:`tracker.daemon` is what ``tracker run`` and systemd run: the frame
+  loop, its modes, the daemon's side of the link (FC commands in as values,
+  STATUS out as a snapshot), exposure control, health and sd_notify.
 * :mod:`tracker.sim` renders synthetic frames with truth;
   :mod:`tracker.catalogue` loads the bundled Hipparcos stars;
   :mod:`tracker.camera` maps pixels to directions.

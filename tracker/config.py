@@ -302,12 +302,15 @@ class LinkConfig:
                               min=0, max=1020)
     queue_attitude: int = knob(4, "ATTITUDE packets waiting to be sent; when full the "
                                "oldest is dropped", "packets", min=1, max=1024)
+    queue_replies: int = knob(256, "ACK/NACK replies waiting; a burst of up to this many "
+                              "commands gets every reply, a longer flood sheds the oldest",
+                              "packets", min=1, max=65536)
     queue_centroids: int = knob(8, "CENTROIDS packets waiting; oldest dropped when full",
                                 "packets", min=1, max=1024)
     queue_status: int = knob(2, "STATUS packets waiting; oldest dropped when full",
                              "packets", min=1, max=1024)
-    max_age_ms: float = knob(500.0, "a queued packet older than this is dropped unsent",
-                             "ms", min=1.0, max=60000.0)
+    max_age_ms: float = knob(500.0, "a queued telemetry packet older than this is dropped "
+                             "unsent (replies are not)", "ms", min=1.0, max=60000.0)
     write_timeout_s: float = knob(0.5, "a write to the port that takes longer counts as a "
                                   "port error (the port is reopened)", "s", min=0.01,
                                   max=60.0)
@@ -328,10 +331,11 @@ class CaptureConfig:
     loop: bool = knob(False, "replay: start again after the last file")
     fps: float = knob(0.0, "frames per second; 0 = replay as fast as possible, live: the "
                       "longest frame the exposure allows", "Hz", min=0.0, max=1000.0)
-    device: str = knob("0", "live: picamera2 camera number, or a V4L2 node (/dev/videoN or "
-                       "its number)")
-    raw_format: str = knob("R16", "picamera2: raw format asked for; the granted one is "
-                           "checked and *_PISP_COMP* (lossy) refused",
+    device: str = knob("0", "live: picamera2 camera number; v4l2: which rp1-cfe with a sensor "
+                       "(its number among them, or /dev/mediaN)")
+    raw_format: str = knob("R16", "raw format asked for; picamera2: the granted one is "
+                           "checked and *_PISP_COMP* (lossy) refused; v4l2: R16 = Y16 (the CFE "
+                           "unpacks), R10_CSI2P = Y10P, R8 = GREY",
                            choices=("R16", "R10", "R8", "R10_CSI2P", "R8_CSI2P"))
     raw_shift: int = knob(6, "right shift applied to 16-bit raw words (6: 10-bit data in the "
                           "high bits of R16, unverified on the Pi: `tracker selftest` says "
@@ -345,18 +349,22 @@ class CaptureConfig:
     gain: float = knob(4.0, "starting analogue gain", "x", min=1.0, max=64.0)
     gain_max: float = knob(16.0, "exposure control: highest analogue gain", "x",
                            min=1.0, max=64.0)
+    gain_code_per_x: float = knob(100.0, "v4l2: the sensor's ANALOGUE_GAIN control units "
+                                  "per 1x gain (arducam-pivariety: 100, as its libcamera "
+                                  "helper)", "code", min=1.0, max=1e6)
     auto_exposure: bool = knob(True, "adjust exposure and gain to keep stars detectable "
                                "and unsaturated")
     target_peak: float = knob(0.5, "exposure control: wanted brightest-star peak as a "
                               "fraction of full scale", "", min=0.05, max=0.95)
     buffer_count: int = knob(4, "live: camera buffers queued", min=2, max=16)
-    timeout_s: float = knob(2.0, "live: longest wait for a frame before the camera counts "
-                            "as timed out", "s", min=0.05, max=60.0)
+    timeout_s: float = knob(2.0, "live: a frame later than its period plus this is lost "
+                            "(camera_timeout); three in a row and the camera is reopened",
+                            "s", min=0.05, max=60.0)
 
 
 @dataclass(frozen=True)
 class ServiceConfig:
-    """The daemon loop (tracker.service)."""
+    """The daemon loop (tracker.daemon)."""
 
     log_level: str = knob("INFO", "logging threshold",
                           choices=("DEBUG", "INFO", "WARNING", "ERROR"))
@@ -368,16 +376,18 @@ class ServiceConfig:
                                   "link.status_rate_hz)", "s", min=0.05, max=3600.0)
     retry_initial_s: float = knob(0.5, "first wait before reopening a failed camera", "s",
                                   min=0.01, max=60.0)
-    retry_max_s: float = knob(8.0, "longest wait between camera reopen attempts (doubling "
-                              "backoff)", "s", min=0.01, max=600.0)
-    track_after: int = knob(2, "consecutive solved frames before acquiring becomes "
+    retry_max_s: float = knob(1.0, "longest wait between camera reopen attempts (doubling "
+                              "backoff); a camera that comes back is streaming within "
+                              "about this long", "s", min=0.01, max=600.0)
+    track_after: int = knob(2, "consecutive solved frames before lost_in_space becomes "
                             "tracking", min=1, max=1000)
     lost_after: int = knob(3, "consecutive unsolved frames before tracking falls back to "
-                           "acquiring", min=1, max=1000)
-    fault_after: int = knob(20, "consecutive failed frames (unreadable, stage error, no "
-                            "camera) before the state is fault", min=1, max=100000)
-    start_state: str = knob("acquiring", "state at start; standby waits for the flight "
-                            "computer's command", choices=("standby", "acquiring"))
+                           "lost_in_space", min=1, max=1000)
+    fault_after: int = knob(20, "consecutive failed frames (unreadable, late, stage error) "
+                            "before the mode is fault (no camera: at once)", min=1,
+                            max=100000)
+    start_state: str = knob("lost_in_space", "mode at start; standby waits for the flight "
+                            "computer's SET_MODE", choices=("standby", "lost_in_space"))
 
 
 @dataclass(frozen=True)

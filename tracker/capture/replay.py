@@ -5,7 +5,9 @@ Paths are expanded by the shared rule of :mod:`tracker.capture.input_paths`
 explicitly in the order given; a missing path, a device or an empty folder is
 a one-line error before anything is read). With ``loop`` the list starts
 again after the last file; with ``fps`` > 0 frames are paced to that rate on
-the monotonic clock. A file that cannot be read becomes a
+the monotonic clock, waiting in slices that yield
+:class:`~tracker.capture.base.Waiting` (as a live camera does between
+frames, so the daemon's watchdog stays fed). A file that cannot be read becomes a
 :class:`~tracker.capture.base.FrameError` and replay goes on.
 
 Metadata: a folder may hold ``frames.jsonl`` (written by ``tracker record``
@@ -22,9 +24,10 @@ import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from tracker.capture.base import Frame, FrameError
+from tracker.capture.base import Frame, FrameError, Waiting
 from tracker.capture.imagefile import IMAGE_SUFFIXES, ImageReadError, read_image
 from tracker.capture.input_paths import expand_inputs
+from tracker.capture.live import WAIT_SLICE_S
 
 __all__ = ["ReplaySource", "expand_paths", "read_metadata", "METADATA_FILE"]
 
@@ -98,7 +101,7 @@ class ReplaySource:
                      int(t_ns) if isinstance(t_ns, int) else time.monotonic_ns(),
                      exposure_us=meta.get("exposure_us"), gain=meta.get("gain"))
 
-    def __iter__(self) -> Iterator[Frame | FrameError]:
+    def __iter__(self) -> Iterator[Frame | FrameError | Waiting]:
         index = 0
         next_due = time.monotonic_ns()
         while not self._closed and self.files:
@@ -106,14 +109,29 @@ class ReplaySource:
                 if self._closed:
                     return
                 if self.period_ns:
-                    delay = next_due - time.monotonic_ns()
-                    if delay > 0:
-                        time.sleep(delay / 1e9)
+                    yield from self._wait_until(next_due)
                     next_due += self.period_ns
                 yield self._load(index, path)
                 index += 1
             if not self.loop:
                 return
+
+    def _wait_until(self, due_ns: int) -> Iterator[Waiting]:
+        """Sleep until ``due_ns`` in slices, yielding :class:`Waiting` after each one.
+
+        A slow replay rate thus keeps the daemon's watchdog fed, as a live
+        camera between frames does.
+        """
+        waited = 0.0
+        while not self._closed:
+            delay_s = (due_ns - time.monotonic_ns()) / 1e9
+            if delay_s <= 0:
+                return
+            step = min(delay_s, WAIT_SLICE_S)
+            time.sleep(step)
+            waited += step
+            if delay_s > step:
+                yield Waiting(waited)
 
     def close(self) -> None:
         self._closed = True

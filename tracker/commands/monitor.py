@@ -141,7 +141,7 @@ def describe(p: Packet) -> str:
             ra, dec, roll = radec_roll_from_matrix(matrix_from_quat(
                 [v["q_w"], v["q_x"], v["q_y"], v["q_z"]]))
             text += (f"  RA {math.degrees(ra):9.4f} Dec {math.degrees(dec):+8.4f} "
-                     f"roll {math.degrees(roll):8.4f} deg  sigma {v['sigma_xy_arcsec']:.1f}/"
+                     f"roll {math.degrees(roll):8.4f} deg  sigma {v['sigma_cross_arcsec']:.1f}/"
                      f"{v['sigma_roll_arcsec']:.1f} arcsec")
         else:
             text += "  no attitude"

@@ -30,8 +30,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tracker.capture.base import FrameError
-from tracker.capture.live import CameraError, cpu_temperature_c, make_source
+from tracker.board import cpu_temperature_c
+from tracker.capture.backends import make_source
+from tracker.capture.base import FrameError, Waiting
+from tracker.capture.live import CameraError
 from tracker.commands.argtypes import count, non_negative, positive_count
 from tracker.commands.outputs import output_folder
 from tracker.config import Config
@@ -99,6 +101,8 @@ def run(args, cfg: Config) -> int:
             for item in source:
                 if stop or (args.frames and saved >= args.frames):
                     break
+                if isinstance(item, Waiting):     # a live camera between frames
+                    continue
                 seen += 1
                 if (seen - 1) % args.every:
                     continue

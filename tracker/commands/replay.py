@@ -22,7 +22,7 @@ import sys
 from collections import Counter, deque
 from pathlib import Path
 
-from tracker.capture import FrameError, ReplaySource
+from tracker.capture import FrameError, ReplaySource, Waiting
 from tracker.commands.argtypes import non_negative
 from tracker.commands.outputs import close_output, open_output, output_folder
 from tracker.commands.progress import Progress
@@ -188,6 +188,8 @@ def run(args, cfg) -> int:
     try:
         with source:
             for item in source:
+                if isinstance(item, Waiting):    # paced by --fps: nothing to do yet
+                    continue
                 path = source.files[item.index % len(source.files)]
                 if isinstance(item, FrameError):
                     record = {"frame": item.name, "error": item.reason, "stars": [],
