@@ -2,7 +2,9 @@
 
 Tests marked ``@pytest.mark.hardware`` need the Raspberry Pi (camera, UART).
 They are skipped unless pytest is given ``--hardware`` or the environment has
-``TRACKER_HARDWARE=1``; on the Pi run ``pytest --hardware -m hardware``.
+``TRACKER_HARDWARE=1``; on the Pi run ``pytest --hardware -m hardware`` on the files
+that hold them (README, "On-device checks"): the Pi's venv has pytest but not the
+peers (sep, cedar-solve) other test files import.
 """
 
 import os

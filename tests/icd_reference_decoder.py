@@ -10,7 +10,7 @@ ASM = bytes([0x1A, 0xCF, 0xFC, 0x1D])
 
 # ICD section 5: (id, struct of the fixed part, names), items for CENTROIDS.
 LAYOUTS = {
-    0x001: (">IQfffffffffHBH", "frame_id t_ns q_w q_x q_y q_z sigma_xy_arcsec "
+    0x001: (">IQfffffffffHBH", "frame_id t_ns q_w q_x q_y q_z sigma_cross_arcsec "
             "sigma_roll_arcsec rate_x rate_y rate_z matched mode flags"),
     0x002: (">IQBBHB", "frame_id t_ns part parts total count"),
     0x003: (">IfIffBIIIIHIHI", "uptime_s frame_rate_hz exposure_us gain cpu_temp_c mode "

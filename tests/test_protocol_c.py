@@ -38,7 +38,7 @@ def _service_stream(seed=11):
         q = q / np.linalg.norm(q) * np.sign(q[0])
         parts.append(enc.encode(MsgId.ATTITUDE, frame_id=k, t_ns=int(rng.integers(0, 2**63)),
                                 q_w=q[0], q_x=q[1], q_y=q[2], q_z=q[3],
-                                sigma_xy_arcsec=rng.uniform(1, 10), sigma_roll_arcsec=math.nan,
+                                sigma_cross_arcsec=rng.uniform(1, 10), sigma_roll_arcsec=math.nan,
                                 rate_x=rng.normal(), rate_y=-0.0, rate_z=math.inf,
                                 matched=k, mode=Mode.TRACKING, flags=k % 16))
         stars = np.zeros(int(rng.integers(0, 70)), dtype=BY_ID[MsgId.CENTROIDS].item_dtype)
@@ -107,7 +107,7 @@ def test_c_decoder_agrees_with_python_on_every_field(st_dump, chunk):
             assert _same(cw, pw, cw.split("=")[0].split("[")[0] in f32), (cw, pw)
     dec = StreamDecoder()
     dec.feed(data)
-    assert int(counters["frames"]) == dec.counters["packets"]
+    assert int(counters["packets"]) == dec.counters["packets"]
     assert int(counters["bad_crc"]) == dec.counters["bad_crc"] > 0
     assert int(counters["bad_header"]) == dec.counters["bad_header"]
 
@@ -127,7 +127,7 @@ def test_c_frame_builder_and_packers_make_the_same_commands_as_python(tmp_path):
 static void put(unsigned apid, unsigned seq, const uint8_t *p, size_t n)
 {
     uint8_t f[64];
-    size_t k, len = st_build_frame(f, sizeof f, apid, 1, seq, p, n);
+    size_t k, len = st_build_packet(f, sizeof f, apid, 1, seq, p, n);
     for (k = 0; k < len; k++) printf("%02x", f[k]);
     printf("\\n");
 }
@@ -157,3 +157,44 @@ int main(void)
             enc.encode(MsgId.TIME_SYNC, fc_time_ns=1234567890123456789),
             pings[0], pings[16383]]
     assert got == [w.hex() for w in want]
+
+
+def test_c_header_refuses_what_the_tracker_nacks(tmp_path):
+    """The ICD's range rules in the FC's header: TIME_SYNC above 2^63 - 1, SET_OUTPUT
+    rates other than 0 or 0.01 .. 100 Hz (1e-45 included) are ST_OUT_OF_RANGE."""
+    src = tmp_path / "ranges.c"
+    src.write_text("""
+#include <stdio.h>
+#include "st_protocol.h"
+static int time_sync(uint64_t t)
+{
+    uint8_t p[8];
+    st_time_sync_t m = {0}, back;
+    m.fc_time_ns = t;
+    return st_parse_time_sync(p, st_pack_time_sync(p, &m), &back);
+}
+static int output(float hz)
+{
+    uint8_t p[6];
+    st_set_output_t m = {ST_ID_ATTITUDE, 0.0f}, back;
+    m.rate_hz = hz;
+    return st_parse_set_output(p, st_pack_set_output(p, &m), &back);
+}
+int main(void)
+{
+    printf("%d %d %d %d\\n", time_sync(0u), time_sync(9223372036854775807ull),
+           time_sync(9223372036854775808ull), time_sync(18446744073709551615ull));
+    printf("%d %d %d %d %d %d\\n", output(0.0f), output(0.01f), output(100.0f),
+           output(1e-45f), output(0.009f), output(-1.0f));
+    printf("%d %d\\n", ST_ERR_CAMERA_LOST, ST_ERR_LINK_INTERNAL);
+    return 0;
+}
+""")
+    exe = tmp_path / "ranges"
+    subprocess.run([GCC, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-I", str(FC),
+                    "-o", str(exe), str(src)], check=True)
+    out = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.split("\n")
+    ok, bad = "0", "4"      # ST_OK, ST_OUT_OF_RANGE
+    assert out[0].split() == [ok, ok, bad, bad]
+    assert out[1].split() == [ok, ok, ok, bad, bad, bad]
+    assert out[2].split() == ["3", "8"]

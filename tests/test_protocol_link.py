@@ -98,12 +98,12 @@ def test_telemetry_through_pyserial_decodes_the_same_in_both_decoders(pty):
     with Link(_cfg(path, max_centroids=50, queue_status=8)) as link:
         for k in range(3):
             assert link.send_attitude(frame_id=k, t_ns=10**12 + k, q=[0.5, 0.5, -0.5, 0.5],
-                                      sigma_xy_arcsec=4.5, sigma_roll_arcsec=31.0, matched=14,
+                                      sigma_cross_arcsec=4.5, sigma_roll_arcsec=31.0, matched=14,
                                       mode=Mode.TRACKING, rate_dps=[0.1, -0.2, 0.3])
             link.send_centroids(k, 10**12 + k, stars)
             link.send_status(**STATUS)
             time.sleep(0.012)
-        link.send_attitude(frame_id=9, t_ns=1, q=None, sigma_xy_arcsec=math.nan,
+        link.send_attitude(frame_id=9, t_ns=1, q=None, sigma_cross_arcsec=math.nan,
                            sigma_roll_arcsec=math.nan, matched=0, mode=Mode.LOST_IN_SPACE)
         data = _read_for(master, 0.4)
     ours = StreamDecoder(Direction.TM).feed(data)
@@ -111,7 +111,7 @@ def test_telemetry_through_pyserial_decodes_the_same_in_both_decoders(pty):
     assert [p.name for p in ours].count("CENTROIDS") == 6      # 50 stars = 40 + 10, x3
     assert len(ours) == len(ref) == 3 * 4 + 1
     for p, r in zip(ours, ref, strict=True):
-        assert (p.id, p.seq, p.frame[10:-2]) == (r["apid"], r["seq"], r["payload"])
+        assert (p.id, p.seq, p.wire[10:-2]) == (r["apid"], r["seq"], r["payload"])
         for k, v in r["values"].items():
             assert p.values[k] == v or (math.isnan(v) and math.isnan(p.values[k]))
         if p.id == MsgId.CENTROIDS:
@@ -192,7 +192,7 @@ def test_when_the_uart_is_too_slow_attitude_goes_first_and_oldest_are_dropped(pt
     for k in range(6):     # queued before the writer starts: it finds them all waiting
         link.send_status(**STATUS)
         link.send_centroids(k, k, stars)
-        link.send_attitude(frame_id=k, t_ns=k, q=[1, 0, 0, 0], sigma_xy_arcsec=1.0,
+        link.send_attitude(frame_id=k, t_ns=k, q=[1, 0, 0, 0], sigma_cross_arcsec=1.0,
                            sigma_roll_arcsec=1.0, matched=5, mode=Mode.TRACKING)
         time.sleep(0.011)
     link.start()
@@ -224,7 +224,7 @@ def test_a_port_that_fails_is_reopened_with_backoff(pty):
     deadline = time.monotonic() + 2
     while link.stats().get("reopens", 0) < 1 and time.monotonic() < deadline:
         time.sleep(0.01)
-    link.send_attitude(frame_id=1, t_ns=1, q=[1, 0, 0, 0], sigma_xy_arcsec=1.0,
+    link.send_attitude(frame_id=1, t_ns=1, q=[1, 0, 0, 0], sigma_cross_arcsec=1.0,
                        sigma_roll_arcsec=1.0, matched=5, mode=Mode.TRACKING)
     data = _read_for(master, 0.2)
     link.close()
@@ -251,7 +251,7 @@ def test_monitor_prints_attitude_as_ra_dec_roll_and_its_ping_is_acked(null_modem
         while not stop.is_set():
             # RA 90, Dec 0, roll 0: boresight +Y of ICRS (q from tracker.attitude).
             link.send_attitude(frame_id=k, t_ns=k, q=[0.7071068, 0.7071068, 0.0, 0.0],
-                               sigma_xy_arcsec=4.0, sigma_roll_arcsec=30.0, matched=9,
+                               sigma_cross_arcsec=4.0, sigma_roll_arcsec=30.0, matched=9,
                                mode=Mode.TRACKING)
             k += 1
             time.sleep(0.02)

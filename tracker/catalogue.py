@@ -41,6 +41,7 @@ import numpy as np
 
 from tracker.attitude import vector_to_radec
 from tracker.config import CatalogueConfig
+from tracker.errors import UserError
 
 __all__ = [
     "Catalogue", "CatalogueError", "default_catalogue_path", "julian_year_now",
@@ -68,7 +69,7 @@ _STAR_ARRAYS = {
 _FORMAT_VERSION = 1
 
 
-class CatalogueError(ValueError):
+class CatalogueError(UserError, ValueError):
     """A catalogue file that cannot be used; the message is one line naming it."""
 
 

@@ -54,7 +54,19 @@ enum st_attitude_flag {
     ST_ATT_VALID = 1,
     ST_ATT_RATE_VALID = 2,
     ST_ATT_TIME_SYNCED = 4,
-    ST_ATT_PREDICTED = 8,
+};
+
+/* STATUS.last_error: the latest fault the tracker survived. */
+enum st_error_code {
+    ST_ERR_NONE = 0, /* no fault since the service started */
+    ST_ERR_FRAME_UNREADABLE = 1, /* a frame arrived broken (bad buffer, corrupt file); skipped */
+    ST_ERR_CAMERA_TIMEOUT = 2, /* no frame within the frame period + capture.timeout_s */
+    ST_ERR_CAMERA_LOST = 3, /* the camera is absent or failed; closed and reopened every service.retry_max_s at most */
+    ST_ERR_STAGE_ERROR = 4, /* detection or identification failed on a frame; that frame dropped */
+    ST_ERR_LINK_ERROR = 5, /* the serial port failed or would not open; reopened with backoff */
+    ST_ERR_RX_REJECT = 6, /* an FC packet was dropped or NACKed (header, CRC, id, length, range) */
+    ST_ERR_TX_DROP = 7, /* a telemetry packet or reply was shed (its queue full, or stale) */
+    ST_ERR_LINK_INTERNAL = 8, /* the link's own code failed while serving the FC; caught, the link goes on */
 };
 
 #define ST_ATTITUDE_SIZE 53u
@@ -116,12 +128,12 @@ static inline void st_put_f32(uint8_t *p, float f)
 
 typedef struct {
     uint32_t frame_id; /* -: frame counter since start, wraps at 2^32 */
-    uint64_t t_ns; /* ns: exposure mid-time (tracker monotonic clock, or FC clock when TIME_SYNCED) */
+    uint64_t t_ns; /* ns: exposure mid-time (tracker monotonic clock, or FC clock when TIME_SYNCED), saturated to 0 .. 2^64-1 */
     float q_w; /* -: quaternion scalar part, >= 0; v_cam = R(q) v_icrs */
     float q_x; /* -: quaternion x */
     float q_y; /* -: quaternion y */
     float q_z; /* -: quaternion z */
-    float sigma_xy_arcsec; /* arcsec: 1-sigma cross-boresight error */
+    float sigma_cross_arcsec; /* arcsec: 1-sigma cross-boresight error */
     float sigma_roll_arcsec; /* arcsec: 1-sigma error about the boresight */
     float rate_x; /* deg/s: angular rate about camera +X; NaN unless RATE_VALID */
     float rate_y; /* deg/s: angular rate about camera +Y; NaN unless RATE_VALID */
@@ -141,7 +153,7 @@ typedef struct {
 
 typedef struct {
     uint32_t frame_id; /* -: frame counter since start, wraps at 2^32 */
-    uint64_t t_ns; /* ns: exposure mid-time (tracker monotonic clock, or FC clock when TIME_SYNCED) */
+    uint64_t t_ns; /* ns: exposure mid-time (tracker monotonic clock, or FC clock when TIME_SYNCED), saturated to 0 .. 2^64-1 */
     uint8_t part; /* -: index of this packet among the frame's parts, from 0 */
     uint8_t parts; /* -: number of parts for this frame */
     uint16_t total; /* stars: stars detected in the frame (may exceed those sent) */
@@ -156,13 +168,13 @@ typedef struct {
     float gain; /* x: analogue gain in use (factor) */
     float cpu_temp_c; /* degC: SoC temperature; NaN if unknown */
     uint8_t mode; /* -: Mode */
-    uint32_t frames; /* -: frames processed */
-    uint32_t capture_faults; /* -: frames lost or unreadable */
+    uint32_t frames; /* -: frames received from the camera (processed, skipped in STANDBY, or lost) */
+    uint32_t capture_faults; /* -: frames lost: unreadable, timed out, camera lost, or dropped by a failing stage */
     uint32_t solve_failures; /* -: frames with stars but no attitude */
-    uint32_t link_drops; /* -: packets dropped by the link queue */
+    uint32_t link_drops; /* -: telemetry packets and replies the link shed (queue full or stale) */
     uint16_t link_reopens; /* -: times the serial port was reopened */
-    uint32_t rx_rejects; /* -: FC frames dropped or NACKed */
-    uint16_t last_error; /* -: last error code, 0 = none (service defines codes) */
+    uint32_t rx_rejects; /* -: FC packets dropped or NACKed: implausible header, bad CRC, unknown id, wrong length, out of range */
+    uint16_t last_error; /* -: ErrorCode of the latest fault, 0 = none since start */
     uint32_t config_crc; /* -: checksum of the effective configuration */
 } st_status_t;
 
@@ -185,11 +197,11 @@ typedef struct {
 } st_set_mode_t;
 
 typedef struct {
-    uint32_t exposure_us; /* us: exposure time */
+    uint32_t exposure_us; /* us: exposure time; clamped to the tracker's configured limits */
 } st_set_exposure_t;
 
 typedef struct {
-    float gain; /* x: analogue gain factor */
+    float gain; /* x: analogue gain factor; clamped to the tracker's configured limit */
 } st_set_gain_t;
 
 typedef struct {
@@ -219,7 +231,7 @@ static inline int st_parse_attitude(const uint8_t *p, size_t n, st_attitude_t *m
     m->q_x = st_get_f32(p + 16);
     m->q_y = st_get_f32(p + 20);
     m->q_z = st_get_f32(p + 24);
-    m->sigma_xy_arcsec = st_get_f32(p + 28);
+    m->sigma_cross_arcsec = st_get_f32(p + 28);
     m->sigma_roll_arcsec = st_get_f32(p + 32);
     m->rate_x = st_get_f32(p + 36);
     m->rate_y = st_get_f32(p + 40);
@@ -352,7 +364,7 @@ static inline int st_parse_set_output(const uint8_t *p, size_t n, st_set_output_
     m->msg_id = st_get_u16(p + 0);
     m->rate_hz = st_get_f32(p + 2);
     if (m->msg_id != 1u && m->msg_id != 2u && m->msg_id != 3u) return ST_OUT_OF_RANGE;
-    if (!(m->rate_hz >= 0.0f && m->rate_hz <= 100.0f)) return ST_OUT_OF_RANGE;
+    if (!(m->rate_hz == 0.0f || (m->rate_hz >= 0.01f && m->rate_hz <= 100.0f))) return ST_OUT_OF_RANGE;
     return ST_OK;
 }
 
@@ -403,6 +415,7 @@ static inline int st_parse_time_sync(const uint8_t *p, size_t n, st_time_sync_t 
 {
     if (n != 8u) return ST_WRONG_LENGTH;
     m->fc_time_ns = st_get_u64(p + 0);
+    if (!(m->fc_time_ns <= 9223372036854775807u)) return ST_OUT_OF_RANGE;
     return ST_OK;
 }
 
@@ -424,7 +437,7 @@ static inline void st_print_attitude(FILE *f, const st_attitude_t *m)
     fprintf(f, " q_x=%.9g", (double)m->q_x);
     fprintf(f, " q_y=%.9g", (double)m->q_y);
     fprintf(f, " q_z=%.9g", (double)m->q_z);
-    fprintf(f, " sigma_xy_arcsec=%.9g", (double)m->sigma_xy_arcsec);
+    fprintf(f, " sigma_cross_arcsec=%.9g", (double)m->sigma_cross_arcsec);
     fprintf(f, " sigma_roll_arcsec=%.9g", (double)m->sigma_roll_arcsec);
     fprintf(f, " rate_x=%.9g", (double)m->rate_x);
     fprintf(f, " rate_y=%.9g", (double)m->rate_y);

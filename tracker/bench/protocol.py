@@ -65,7 +65,7 @@ def sample_stars(rng: np.random.Generator, n: int) -> np.ndarray:
 
 def sample_attitude(enc: Encoder, k: int) -> bytes:
     return enc.encode(MsgId.ATTITUDE, frame_id=k, t_ns=k * 33_333_333, q_w=0.5, q_x=0.5,
-                      q_y=-0.5, q_z=0.5, sigma_xy_arcsec=5.0, sigma_roll_arcsec=30.0,
+                      q_y=-0.5, q_z=0.5, sigma_cross_arcsec=5.0, sigma_roll_arcsec=30.0,
                       rate_x=0.01, rate_y=0.0, rate_z=-0.02, matched=17, mode=Mode.TRACKING,
                       flags=3)
 
@@ -81,14 +81,14 @@ def _costs(rng: np.random.Generator, n: int = 3000) -> dict:
     out = {}
     for name, make in makers.items():
         t0 = time.perf_counter()
-        frames = [make(k) for k in range(n)]
+        packets = [make(k) for k in range(n)]
         t_enc = (time.perf_counter() - t0) / n
-        stream = b"".join(frames)
+        stream = b"".join(packets)
         dec = StreamDecoder(Direction.TM)
         t0 = time.perf_counter()
         got = sum(len(dec.feed(stream[i:i + 4096])) for i in range(0, len(stream), 4096))
         t_dec = (time.perf_counter() - t0) / n
-        out[name] = {"frame_bytes": len(frames[0]), "encode_us": t_enc * 1e6,
+        out[name] = {"packet_bytes": len(packets[0]), "encode_us": t_enc * 1e6,
                      "decode_us": t_dec * 1e6, "decoded": got, "of": n}
     return out
 
@@ -172,7 +172,7 @@ def _overload(cfg, rng: np.random.Generator, baud: int, seconds: float) -> dict:
     k = 0
     while time.monotonic() - t0 < seconds:
         t_ns = time.monotonic_ns()
-        link.send_attitude(frame_id=k, t_ns=t_ns, q=[1.0, 0.0, 0.0, 0.0], sigma_xy_arcsec=5.0,
+        link.send_attitude(frame_id=k, t_ns=t_ns, q=[1.0, 0.0, 0.0, 0.0], sigma_cross_arcsec=5.0,
                            sigma_roll_arcsec=30.0, matched=12, mode=Mode.TRACKING)
         link.send_centroids(k, t_ns, stars)
         link.send_status(**STATUS_VALUES)
@@ -216,9 +216,9 @@ def _markdown(r: dict) -> str:
     lines = ["# Benchmark: serial protocol", "",
              f"Machine: {m['cpu']}, {m['cores']} cores, {m['memory_gib']} GiB, {m['os']}, "
              f"Python {m['python']}", "", "## Cost per packet", "",
-             "| message | frame bytes | encode us | decode us |", "|---|---:|---:|---:|"]
+             "| message | packet bytes | encode us | decode us |", "|---|---:|---:|---:|"]
     for name, c in r["costs"].items():
-        lines.append(f"| {name} | {c['frame_bytes']} | {c['encode_us']:.1f} | "
+        lines.append(f"| {name} | {c['packet_bytes']} | {c['encode_us']:.1f} | "
                      f"{c['decode_us']:.1f} |")
     f = r["fuzz"]
     lines += ["", "## Decoder fuzzing", "",

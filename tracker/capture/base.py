@@ -2,8 +2,11 @@
 
 A source yields, in order, either a :class:`Frame` (pixels plus metadata) or
 a :class:`FrameError` (what could not be read, and why). An error never ends
-the stream: the consumer counts it and asks for the next item. A source is
-a context manager; leaving the block releases the device or files.
+the stream: the consumer counts it and asks for the next item. A live source
+also yields :class:`Waiting` whenever it has waited a slice of time
+(``tracker.capture.live.WAIT_SLICE_S``) without a frame, so its consumer
+keeps control during long exposures or a silent camera; nothing is lost.
+A source is a context manager; leaving the block releases the device or files.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
-__all__ = ["Frame", "FrameError", "FrameSource"]
+__all__ = ["Frame", "FrameError", "FrameSource", "Waiting"]
 
 
 @dataclass
@@ -46,10 +49,17 @@ class FrameError:
     reason: str
 
 
+@dataclass(frozen=True)
+class Waiting:
+    """No frame yet: the source has waited ``waited_s`` seconds for this one so far."""
+
+    waited_s: float
+
+
 class FrameSource(Protocol):
     """Anything that yields frames: replay files, picamera2, V4L2."""
 
-    def __iter__(self) -> Iterator[Frame | FrameError]: ...
+    def __iter__(self) -> Iterator[Frame | FrameError | Waiting]: ...
 
     def close(self) -> None: ...
 

@@ -1,10 +1,13 @@
 """Replay backend: frames from image files or folders, in name order.
 
-Folders are expanded to the image files directly inside them (see
-:data:`tracker.capture.imagefile.IMAGE_SUFFIXES`), sorted by name; files
-named explicitly are kept in the order given. With ``loop`` the list starts
+Paths are expanded by the shared rule of :mod:`tracker.capture.input_paths`
+(folders to the image files directly inside them, sorted by name; files named
+explicitly in the order given; a missing path, a device or an empty folder is
+a one-line error before anything is read). With ``loop`` the list starts
 again after the last file; with ``fps`` > 0 frames are paced to that rate on
-the monotonic clock. A file that cannot be read becomes a
+the monotonic clock, waiting in slices that yield
+:class:`~tracker.capture.base.Waiting` (as a live camera does between
+frames, so the daemon's watchdog stays fed). A file that cannot be read becomes a
 :class:`~tracker.capture.base.FrameError` and replay goes on.
 
 Metadata: a folder may hold ``frames.jsonl`` (written by ``tracker record``
@@ -21,8 +24,10 @@ import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from tracker.capture.base import Frame, FrameError
+from tracker.capture.base import Frame, FrameError, Waiting
 from tracker.capture.imagefile import IMAGE_SUFFIXES, ImageReadError, read_image
+from tracker.capture.input_paths import expand_inputs
+from tracker.capture.live import WAIT_SLICE_S
 
 __all__ = ["ReplaySource", "expand_paths", "read_metadata", "METADATA_FILE"]
 
@@ -30,20 +35,8 @@ METADATA_FILE = "frames.jsonl"
 
 
 def expand_paths(paths: Sequence[str | Path]) -> list[Path]:
-    """Files named, plus the image files inside folders named, in replay order.
-
-    Raises FileNotFoundError naming the first path that does not exist.
-    """
-    out: list[Path] = []
-    for p in map(Path, paths):
-        if p.is_dir():
-            out.extend(sorted(f for f in p.iterdir()
-                              if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES))
-        elif p.exists():
-            out.append(p)
-        else:
-            raise FileNotFoundError(f"{p}: no such file or folder")
-    return out
+    """The image files to replay, in order (tracker.capture.input_paths; UserError if none)."""
+    return expand_inputs(paths, IMAGE_SUFFIXES)
 
 
 def read_metadata(paths: Sequence[str | Path]) -> dict[Path, dict]:
@@ -70,17 +63,24 @@ class ReplaySource:
     """A FrameSource over files; see the module docstring.
 
     ``expect_shape`` (height, width), when given, turns frames of another
-    size into errors rather than passing them on.
+    size into errors rather than passing them on. ``max_size`` (width,
+    height; default: that of ``expect_shape``) is the largest image decoded
+    (tracker.capture.imagefile); a larger one is an error read from its
+    header alone.
     """
 
     def __init__(self, paths: Sequence[str | Path], *, loop: bool = False, fps: float = 0.0,
-                 bits16_depth: int = 10, expect_shape: tuple[int, int] | None = None):
+                 bits16_depth: int = 10, expect_shape: tuple[int, int] | None = None,
+                 max_size: tuple[int, int] | None = None):
         self.files = expand_paths(paths)
         self.metadata = read_metadata(paths)
         self.loop = loop
         self.period_ns = int(1e9 / fps) if fps > 0 else 0
         self.bits16_depth = bits16_depth
         self.expect_shape = expect_shape
+        if max_size is None and expect_shape is not None:
+            max_size = (expect_shape[1], expect_shape[0])
+        self.max_size = max_size
         self._closed = False
 
     def __len__(self) -> int:
@@ -88,7 +88,7 @@ class ReplaySource:
 
     def _load(self, index: int, path: Path) -> Frame | FrameError:
         try:
-            image, depth = read_image(path, self.bits16_depth)
+            image, depth = read_image(path, self.bits16_depth, self.max_size)
         except ImageReadError as exc:
             return FrameError(index, path.name, str(exc))
         if self.expect_shape is not None and image.shape != tuple(self.expect_shape):
@@ -101,7 +101,7 @@ class ReplaySource:
                      int(t_ns) if isinstance(t_ns, int) else time.monotonic_ns(),
                      exposure_us=meta.get("exposure_us"), gain=meta.get("gain"))
 
-    def __iter__(self) -> Iterator[Frame | FrameError]:
+    def __iter__(self) -> Iterator[Frame | FrameError | Waiting]:
         index = 0
         next_due = time.monotonic_ns()
         while not self._closed and self.files:
@@ -109,14 +109,29 @@ class ReplaySource:
                 if self._closed:
                     return
                 if self.period_ns:
-                    delay = next_due - time.monotonic_ns()
-                    if delay > 0:
-                        time.sleep(delay / 1e9)
+                    yield from self._wait_until(next_due)
                     next_due += self.period_ns
                 yield self._load(index, path)
                 index += 1
             if not self.loop:
                 return
+
+    def _wait_until(self, due_ns: int) -> Iterator[Waiting]:
+        """Sleep until ``due_ns`` in slices, yielding :class:`Waiting` after each one.
+
+        A slow replay rate thus keeps the daemon's watchdog fed, as a live
+        camera between frames does.
+        """
+        waited = 0.0
+        while not self._closed:
+            delay_s = (due_ns - time.monotonic_ns()) / 1e9
+            if delay_s <= 0:
+                return
+            step = min(delay_s, WAIT_SLICE_S)
+            time.sleep(step)
+            waited += step
+            if delay_s > step:
+                yield Waiting(waited)
 
     def close(self) -> None:
         self._closed = True

@@ -24,17 +24,20 @@ import numpy as np
 
 from tracker.camera import CameraModel
 from tracker.capture.imagefile import IMAGE_SUFFIXES, read_image
+from tracker.capture.input_paths import expand_inputs
 from tracker.catalogue import Catalogue
-from tracker.cli import UserError
+from tracker.commands.argtypes import non_negative
 from tracker.config import render_yaml
 from tracker.detect import STAR_DTYPE, make_detector
+from tracker.errors import UserError
 from tracker.identify.calibration import CalibrationFrame, calibrate
 from tracker.identify.database import PatternDatabase, find_database
 from tracker.identify.solver import Solver
 
-__all__ = ["register", "run", "load_stars", "expand_frames"]
+__all__ = ["register", "run", "load_stars", "expand_frames", "CENTROIDS_SUFFIX"]
 
 _SCALE_STEP = 0.005
+CENTROIDS_SUFFIX = ".centroids.json"
 
 
 def register(sub, common) -> None:
@@ -46,23 +49,18 @@ def register(sub, common) -> None:
     p.add_argument("--fix-centre", action="store_true",
                    help="keep the principal point (advised for a single frame)")
     p.add_argument("--fit-k2", action="store_true", help="fit the r^4 distortion term too")
-    p.add_argument("--scale-range", type=float, default=0.08,
+    p.add_argument("--scale-range", type=non_negative, default=0.08,
                    help="search the focal length within this fraction of nominal")
     p.set_defaults(func=run)
 
 
 def expand_frames(paths: list[str]) -> list[Path]:
-    out = []
-    for name in paths:
-        path = Path(name)
-        if path.is_dir():
-            out += sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
-                          or p.name.endswith(".centroids.json"))
-        elif path.exists():
-            out.append(path)
-        else:
-            raise FileNotFoundError(f"{path}: no such file or folder")
-    return out
+    """Images and centroid lists named, or in folders named (tracker.capture.input_paths).
+
+    A folder holding an image and its ``<image>.centroids.json`` gives the list only.
+    """
+    return expand_inputs(paths, (*IMAGE_SUFFIXES, CENTROIDS_SUFFIX),
+                         what="images or centroid lists", companion=CENTROIDS_SUFFIX)
 
 
 def load_stars(path: Path, cfg) -> tuple[np.ndarray, int, int]:

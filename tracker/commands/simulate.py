@@ -23,8 +23,8 @@ import numpy as np
 from tracker.attitude import matrix_from_radec_roll
 from tracker.capture.replay import METADATA_FILE
 from tracker.catalogue import Catalogue
-from tracker.cli import UserError
 from tracker.commands.progress import Progress
+from tracker.errors import UserError
 from tracker.sim import random_attitude, render_sequence, render_sky, write_frame
 
 _NOISE_CHOICES = ("realistic", "none", "gaussian_poisson", "salt_pepper", "speckle", "glare")

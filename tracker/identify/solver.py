@@ -68,8 +68,9 @@ class Solution:
     attitude_covariance); ``residual_arcsec`` the RMS fit residual per star.
     ``hip`` has one entry per input star (0 = unidentified). ``rate_rad_s`` is
     the body angular velocity in the camera frame from the last two solutions
-    (None if unknown). ``prob_false`` is the model probability that the
-    accepted match is wrong (tracker.identify.verify).
+    (None if unknown, or if they are further apart than ``track_max_gap_s``:
+    a rate averaged over a long gap is not a rate). ``prob_false`` is the
+    model probability that the accepted match is wrong (tracker.identify.verify).
     """
 
     ok: bool
@@ -348,7 +349,8 @@ class Solver:
         hip[idx[ok]] = self._cat_hip[cat_idx[which[ok]]]
         ra, dec, roll = radec_roll_from_matrix(self._to_centre @ R)
         rate = None
-        if self._last_R is not None and self._last_t is not None and t_ns > self._last_t:
+        if self._last_R is not None and self._last_t is not None and \
+                0 < t_ns - self._last_t <= self.cfg.track_max_gap_s * 1e9:
             new_rate = rotation_vector(R @ self._last_R.T) / ((t_ns - self._last_t) / 1e9)
             # average with the previous estimate: halves the noise of a steady rate
             self._rate = new_rate if self._rate is None else 0.5 * (self._rate + new_rate)

@@ -60,7 +60,7 @@ def test_sigterm_stops_the_service_cleanly(tmp_path):
 
 STALLING = """
 import sys, time, dataclasses
-from tracker.commands.run import build_service
+from tracker.commands.run import build_daemon
 from tracker.config import Config
 
 class Stall:
@@ -70,7 +70,7 @@ class Stall:
 cfg = Config()
 cfg = dataclasses.replace(cfg, service=dataclasses.replace(cfg.service, watchdog_s=1.0),
                           link=dataclasses.replace(cfg.link, port="loop://"))
-sys.exit(build_service(cfg, [sys.argv[1]], pipeline=Stall()).run())
+sys.exit(build_daemon(cfg, [sys.argv[1]], pipeline=Stall()).run())
 """
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from tracker.config import CaptureConfig
+from tracker.daemon.exposure import ExposureControl
 from tracker.detect import STAR_DTYPE, Detections, StarFlag
-from tracker.exposure import ExposureControl
 
 FULL = 1023.0
 

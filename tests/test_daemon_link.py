@@ -1,4 +1,4 @@
-"""The service talking to a flight computer over a pseudo-terminal, decoded per the ICD."""
+"""The daemon talking to a flight computer over a pseudo-terminal, decoded per the ICD."""
 
 import dataclasses
 import os
@@ -9,18 +9,17 @@ import tty
 
 import numpy as np
 import pytest
+from daemon_fakes import paced_frames
 
-from tracker.capture.base import Frame
 from tracker.config import Config
+from tracker.daemon import Daemon, DaemonLink
+from tracker.daemon.notify import Notifier
 from tracker.detect import STAR_DTYPE, Detections
-from tracker.notify import Notifier
 from tracker.pipeline import FrameResult
 from tracker.protocol.decoder import StreamDecoder
 from tracker.protocol.encoder import Encoder
 from tracker.protocol.framing import crc16
-from tracker.protocol.messages import AttitudeFlag, Direction, Mode, MsgId, Reason
-from tracker.service import Service, State
-from tracker.service_link import ServiceLink
+from tracker.protocol.messages import AttitudeFlag, Direction, ErrorCode, Mode, MsgId, Reason
 
 
 class Solution:
@@ -42,29 +41,6 @@ class Pipeline:
         stars = np.zeros(3, STAR_DTYPE)
         stars["x"], stars["flux"] = [1.0, 2.0, 3.0], [30.0, 20.0, 10.0]
         return FrameResult(Detections(stars), Solution(), 1.0, {})
-
-
-class Frames:
-    """An endless paced source of tiny frames (the link test needs time, not pixels)."""
-
-    def __init__(self):
-        self.closed = False
-
-    def __iter__(self):
-        i = 0
-        while not self.closed:
-            time.sleep(0.005)
-            yield Frame(i, f"f{i}", np.zeros((8, 8), np.uint16), 10, 1000 + i)
-            i += 1
-
-    def close(self):
-        self.closed = True
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
 
 def read_packets(fd, decoder, until, timeout=5.0):
@@ -98,8 +74,8 @@ def test_fc_commands_garbage_and_telemetry(fc):
                                                             centroids_rate_hz=50.0),
                               service=dataclasses.replace(cfg.service, watchdog_s=0.0))
     pipeline = Pipeline()
-    svc = Service(cfg, source_factory=Frames, pipeline=pipeline, link=ServiceLink(cfg),
-                  notifier=Notifier(""))
+    svc = Daemon(cfg, source_factory=paced_frames, pipeline=pipeline, link=DaemonLink(cfg),
+                 notifier=Notifier(""))
     runner = threading.Thread(target=svc.run)
     runner.start()
     try:
@@ -123,10 +99,10 @@ def test_fc_commands_garbage_and_telemetry(fc):
         ack = next(p for p in replies if p.id == MsgId.ACK)
         assert ack.values["cmd_id"] == MsgId.SET_MODE
         deadline = time.monotonic() + 5
-        while svc.state != State.STANDBY and time.monotonic() < deadline:
+        while svc.mode != Mode.STANDBY and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert svc.state == State.STANDBY
-        assert svc.health.faults["rx_reject"] >= 1
+        assert svc.mode == Mode.STANDBY
+        assert svc.health.faults[ErrorCode.RX_REJECT] >= 1
 
         os.write(master, fc_enc.encode(MsgId.SET_EXPOSURE, exposure_us=1500))
         deadline = time.monotonic() + 5
@@ -148,7 +124,7 @@ def test_fc_commands_garbage_and_telemetry(fc):
         deadline = time.monotonic() + 5
         while pipeline.resets == 0 and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert pipeline.resets == 1 and svc.state != State.STANDBY
+        assert pipeline.resets == 1 and svc.mode != Mode.STANDBY
     finally:
         svc.request_stop()
         runner.join(timeout=10)

@@ -44,12 +44,17 @@ class ExposureControl:
         self._wait = 0
 
     def set_manual(self, exposure_us: float | None = None, gain: float | None = None) -> None:
-        """Fix exposure and/or gain (a flight-computer command); auto control stops."""
+        """Fix exposure and/or gain (a flight-computer command); auto control stops.
+
+        Values are clamped to the configured limits: exposure to
+        ``exposure_min_us .. exposure_max_us``, gain to ``1 .. gain_max``.
+        """
         self.auto = False
         if exposure_us is not None:
-            self.exposure_us = float(exposure_us)
+            self.exposure_us = min(max(float(exposure_us), self.cfg.exposure_min_us),
+                                   self.cfg.exposure_max_us)
         if gain is not None:
-            self.gain = float(gain)
+            self.gain = min(max(float(gain), 1.0), self.cfg.gain_max)
 
     def _ratio(self, det: Detections, bit_depth: int) -> float:
         stars = det.stars

@@ -1,10 +1,17 @@
-"""systemd notification (sd_notify(3)) without a dependency.
+"""systemd notification (sd_notify(3)) without a dependency, and the watchdog's pace.
 
-Sends datagrams such as ``READY=1``, ``WATCHDOG=1`` or ``STATUS=...`` to the
-AF_UNIX socket named by ``$NOTIFY_SOCKET`` (a leading ``@`` means the
-abstract namespace). Without that variable (tests, a shell) it does
-nothing. A send that fails is logged once and otherwise ignored: systemd
-then restarts the unit through its watchdog, which is the right outcome.
+:class:`Notifier` sends datagrams such as ``READY=1``, ``WATCHDOG=1`` or
+``STATUS=...`` to the AF_UNIX socket named by ``$NOTIFY_SOCKET`` (a leading
+``@`` means the abstract namespace). Without that variable (tests, a shell)
+it does nothing. A send that fails is logged once and otherwise ignored:
+systemd then restarts the unit through its watchdog, which is the right
+outcome.
+
+:class:`Watchdog` paces ``WATCHDOG=1``: at most every half of systemd's
+``WatchdogSec`` (``$WATCHDOG_USEC``), as sd_watchdog_enabled(3) advises. The
+daemon calls :meth:`Watchdog.kick` only from its loop, and only while the
+loop is healthy, so a loop that hangs or a link that died stops the pings
+and systemd restarts the unit.
 """
 
 from __future__ import annotations
@@ -13,7 +20,7 @@ import logging
 import os
 import socket
 
-__all__ = ["Notifier", "watchdog_interval_s"]
+__all__ = ["Notifier", "Watchdog", "watchdog_interval_s"]
 
 log = logging.getLogger(__name__)
 
@@ -56,3 +63,18 @@ def watchdog_interval_s() -> float | None:
         return int(usec) / 2e6
     except ValueError:
         return None
+
+
+class Watchdog:
+    """Sends ``WATCHDOG=1`` through ``notifier`` at most every ``interval_s`` (None: never)."""
+
+    def __init__(self, notifier: Notifier, interval_s: float | None):
+        self.notifier = notifier
+        self.period_ns = None if interval_s is None else int(interval_s * 1e9)
+        self._next_ns = 0
+
+    def kick(self, now_ns: int) -> None:
+        """The loop is alive and well at now_ns: ping systemd if a ping is due."""
+        if self.period_ns is not None and now_ns >= self._next_ns:
+            self.notifier.notify("WATCHDOG=1")
+            self._next_ns = now_ns + self.period_ns
