@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tracker.astrometry.timescale import TAI_NS_MAX, TAI_NS_MIN
 from tracker.protocol.decoder import StreamDecoder
 from tracker.protocol.encoder import Encoder
 from tracker.protocol.messages import BY_ID, TYPES, Direction, Mode, MsgId
@@ -58,7 +59,8 @@ def _service_stream(seed=11):
                                     exposure_us=20000, gain=1.5, cpu_temp_c=60.25, mode=1,
                                     frames=k, capture_faults=0, solve_failures=2,
                                     link_drops=3, link_reopens=4, rx_rejects=5,
-                                    last_error=6, config_crc=0xFFFFFFFF))
+                                    last_error=6, config_crc=0xFFFFFFFF, time_source=k % 4,
+                                    corrections=k % 8))
             parts.append(enc.encode(MsgId.NACK, cmd_id=0x21, cmd_seq=16383, code=4,
                                     rx_t_ns=2**64 - 1))
     return b"".join(parts)
@@ -160,7 +162,7 @@ int main(void)
 
 
 def test_c_header_refuses_what_the_tracker_nacks(tmp_path):
-    """The ICD's range rules in the FC's header: TIME_SYNC above 2^63 - 1, SET_OUTPUT
+    """The ICD's range rules in the FC's header: TIME_SYNC outside 1972-2200 TAI, SET_OUTPUT
     rates other than 0 or 0.01 .. 100 Hz (1e-45 included) are ST_OUT_OF_RANGE."""
     src = tmp_path / "ranges.c"
     src.write_text("""
@@ -182,19 +184,20 @@ static int output(float hz)
 }
 int main(void)
 {
-    printf("%d %d %d %d\\n", time_sync(0u), time_sync(9223372036854775807ull),
-           time_sync(9223372036854775808ull), time_sync(18446744073709551615ull));
+    printf("%d %d %d %d %d %d\\n", time_sync(0u), time_sync({lo}ull),
+           time_sync({lo}ull - 1u), time_sync({hi}ull), time_sync({hi}ull + 1u),
+           time_sync(18446744073709551615ull));
     printf("%d %d %d %d %d %d\\n", output(0.0f), output(0.01f), output(100.0f),
            output(1e-45f), output(0.009f), output(-1.0f));
     printf("%d %d\\n", ST_ERR_CAMERA_LOST, ST_ERR_LINK_INTERNAL);
     return 0;
 }
-""")
+""".replace("{lo}", str(TAI_NS_MIN)).replace("{hi}", str(TAI_NS_MAX)))
     exe = tmp_path / "ranges"
     subprocess.run([GCC, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-I", str(FC),
                     "-o", str(exe), str(src)], check=True)
     out = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.split("\n")
     ok, bad = "0", "4"      # ST_OK, ST_OUT_OF_RANGE
-    assert out[0].split() == [ok, ok, bad, bad]
+    assert out[0].split() == [bad, ok, bad, ok, bad, bad]
     assert out[1].split() == [ok, ok, ok, bad, bad, bad]
     assert out[2].split() == ["3", "8"]

@@ -196,8 +196,11 @@ class Solver:
 
     # -- public --------------------------------------------------------------
 
-    def solve(self, stars, t_ns: int) -> Solution:
-        """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module."""
+    def solve(self, stars, t_ns: int, observer=None) -> Solution:
+        """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module.
+
+        ``observer``: the frame's tracker.astrometry.observer.Observer (None: unknown).
+        """
         timer = self._timer
         timer.reset()
         timer.start("prepare")
