@@ -120,3 +120,18 @@ def test_library_calls_take_utc_and_say_what_was_corrected():
         tracker.solve_centroids([(0, 0)] * 5, observer_velocity_km_s=(1, 2, 3))
     with pytest.raises(tracker.UserError, match="expected ISO 8601"):
         tracker.solve_centroids([(0, 0)] * 5, utc="yesterday")
+
+
+@pytest.mark.parametrize("policy, synced, status, says", [
+    ("never", False, "PASS", "TIME_SYNC only"), ("synchronised", True, "PASS", "until TIME_SYNC"),
+    ("synchronised", False, "WARN", "not used until it is"),
+    ("synchronised", None, "WARN", "synchronisation unknown"),
+    ("always", True, "WARN", "without the kernel's word")])
+def test_selftest_says_whether_the_clock_is_used(monkeypatch, policy, synced, status, says):
+    from tracker.commands import selftest
+    from tracker.config import Config, TimeConfig
+
+    monkeypatch.setattr(selftest, "kernel_synchronised", lambda: synced)
+    got, text = selftest.check_clock(Config(time=TimeConfig(system_clock=policy)), None)
+    assert got == status and says in text
+    assert f"time.system_clock: {policy}" in text
