@@ -31,7 +31,10 @@ _NEWTON_STEPS = 12
 
 @dataclass(frozen=True)
 class CameraModel:
-    """Intrinsics of one camera; build it with :meth:`from_config`."""
+    """Intrinsics of one camera; build it with :meth:`from_config`.
+
+    ``pixel_size_um`` (None if unknown) only converts focal lengths to mm.
+    """
 
     width: int
     height: int
@@ -40,6 +43,7 @@ class CameraModel:
     cy: float
     k1: float = 0.0
     k2: float = 0.0
+    pixel_size_um: float | None = None
 
     @classmethod
     def from_config(cls, cfg: CameraConfig) -> CameraModel:
@@ -52,6 +56,7 @@ class CameraModel:
             cy=(cfg.height - 1) / 2.0 if cfg.cy is None else cfg.cy,
             k1=cfg.k1,
             k2=cfg.k2,
+            pixel_size_um=cfg.pixel_size_um,
         )
 
     # -- geometry -----------------------------------------------------------

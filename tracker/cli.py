@@ -31,6 +31,7 @@ COMMAND_MODULES = (
     "tracker.commands.selftest",
     "tracker.commands.monitor",
     "tracker.commands.calibrate",
+    "tracker.commands.database",
     "tracker.commands.validate",
 )
 
