@@ -6,8 +6,8 @@ and the r^2 distortion k1 (tracker.camera's model; k2 and the principal
 point stay as configured) minimise the pixel residuals of the matched
 stars plus Gaussian priors on f and k1 (Gauss-Newton with the analytic
 Jacobian; it converges in 2-4 steps from a pattern's estimate). Residuals
-are weighted by the centroid variance sigma^2, estimated from the fit's own
-residuals blended with a prior (``centroid_sigma_px`` with 3 degrees of
+are weighted by the centroid variance sigma^2, re-estimated at every step
+from the fit's own residuals blended with a prior (``centroid_sigma_px`` with 3 degrees of
 freedom, as for the attitude sigmas). The result carries the frame's data
 information on (f, k1) with theta eliminated (the Schur complement of the
 normal matrix), which is what the filter accumulates.
@@ -38,7 +38,7 @@ from tracker.camera import CameraModel
 __all__ = ["LensPrior", "FrameFit", "fit_frame", "LensFilter", "LensState"]
 
 _PRIOR_DOF = 3.0
-_ITERATIONS = 6
+_ITERATIONS = 8
 
 
 @dataclass(frozen=True)
@@ -114,12 +114,19 @@ def fit_frame(xy: np.ndarray, ref: np.ndarray, R0: np.ndarray, camera: CameraMod
     R, cam = R0, dataclasses.replace(camera, f_px=float(camera.f_px), k1=float(camera.k1))
     P = prior.information
     m = prior.mean
-    for _ in range(_ITERATIONS):
+    n = len(xy)
+
+    def weighted(cam, R):
+        """Residuals (n, 2), the data's normal matrix and vector, weighted by 1/sigma^2."""
         pix, J = _project_with_jacobian(cam, ref @ R.T)
-        r = (xy - pix).reshape(-1)
+        d = xy - pix
+        sigma2 = ((float(np.square(d).sum()) + _PRIOR_DOF * centroid_sigma_px ** 2)
+                  / max(1.0, 2 * n - 5 + _PRIOR_DOF))
         Jf = J.reshape(-1, 5)
-        H = Jf.T @ Jf
-        b = Jf.T @ r
+        return d, Jf.T @ Jf / sigma2, Jf.T @ d.reshape(-1) / sigma2, sigma2
+
+    for _ in range(_ITERATIONS):
+        _, H, b, _ = weighted(cam, R)
         x = np.array([cam.f_px, cam.k1])
         Hp = H.copy()
         Hp[3:, 3:] += P
@@ -132,16 +139,9 @@ def fit_frame(xy: np.ndarray, ref: np.ndarray, R0: np.ndarray, camera: CameraMod
         R = matrix_from_rotation_vector(step[:3]) @ R
         cam = dataclasses.replace(cam, f_px=float(cam.f_px + step[3]),
                                   k1=float(cam.k1 + step[4]))
-        if np.max(np.abs(step[:3])) < 1e-10 and abs(step[3]) < 1e-6 * cam.f_px:
+        if np.max(np.abs(step[:3])) < 1e-10 and abs(step[3]) < 1e-7 * cam.f_px:
             break
-    pix, J = _project_with_jacobian(cam, ref @ R.T)
-    d = xy - pix
-    n = len(xy)
-    sigma2 = ((float(np.square(d).sum()) + _PRIOR_DOF * centroid_sigma_px ** 2)
-              / max(1.0, 2 * n - 5 + _PRIOR_DOF))
-    Jf = J.reshape(-1, 5)
-    H = Jf.T @ Jf / sigma2
-    b = Jf.T @ d.reshape(-1) / sigma2
+    d, H, b, sigma2 = weighted(cam, R)
     # eliminate theta: the frame's information on (f, k1) alone
     Htt, Htl = H[:3, :3], H[:3, 3:]
     try:
