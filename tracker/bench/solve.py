@@ -286,6 +286,7 @@ def _summary(rows: list[dict], key: str) -> dict:
         out[f"time_{name}"] = {"median": _stat(times, np.median),
                                "p99": _stat(times, lambda t: np.percentile(t, 99)),
                                "max": _stat(times, np.max)}
+    out["sigma_check"] = _sigma_check(good)
     out["cross_arcsec_rms"] = _stat([g["cross_as"] for g in good],
                                     lambda v: np.sqrt(np.mean(v ** 2)))
     out["roll_arcsec_rms"] = _stat([g["roll_as"] for g in good],
@@ -301,6 +302,19 @@ def _summary(rows: list[dict], key: str) -> dict:
     return out
 
 
+def _sigma_check(good: list[dict], min_matched: int = 8) -> dict:
+    """RMS reported sigmas over RMS observed errors (cross, roll), solves with >= 8 matched."""
+    sel = [g for g in good if g.get("matched", 0) >= min_matched and "sigma_cross" in g]
+    if not sel:
+        return {"frames": 0, "cross_ratio": math.nan, "roll_ratio": math.nan}
+
+    def rms(key):
+        return float(np.sqrt(np.mean(np.square([g[key] for g in sel]))))
+
+    return {"frames": len(sel), "cross_ratio": rms("sigma_cross") / rms("cross_as"),
+            "roll_ratio": rms("sigma_roll") / rms("roll_as")}
+
+
 def _ours(solver, stars, truth: _Truth, t_ns, R_true, f_true_mm: float,
           camera: CameraModel) -> dict:
     t0, c0 = time.perf_counter(), time.thread_time()
@@ -312,6 +326,7 @@ def _ours(solver, stars, truth: _Truth, t_ns, R_true, f_true_mm: float,
     if sol.ok:
         named = np.flatnonzero(sol.hip)
         _judge(rec, truth.wrong(named, sol.hip[named]), *_outside(sol.R, R_true, camera))
+        rec["sigma_cross"], rec["sigma_roll"] = sol.sigma_cross_arcsec, sol.sigma_roll_arcsec
         rec["focal_error"] = sol.focal_length_mm / f_true_mm - 1.0
         rec["focal_sigma"] = sol.sigma_focal_length_mm / f_true_mm
         rec["lens_focal_error"] = sol.lens.focal_length_mm / f_true_mm - 1.0
@@ -438,8 +453,9 @@ def _markdown(machine: dict, args, results: list[dict], tetra: dict | None) -> s
         lines += ["", "| solver, focal error | >=8 stars | 5-7 | <5 | false | outside "
                   "| mislabelled | median ms | p99 ms | CPU median / p99 ms "
                   "| focal within 0.1 % (>=15 matched) | within 3 reported sigma "
-                  "| focal p99 % | cross RMS arcsec | roll RMS arcsec |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "| focal p99 % | cross RMS arcsec | roll RMS arcsec "
+                  "| reported / observed sigma, cross and roll |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for name, s in res["lost_in_space"].items():
             false = sum(s[b]["false"] for b in _BUCKETS)
             outside = sum(s[b]["outside"] for b in _BUCKETS)
@@ -452,7 +468,9 @@ def _markdown(machine: dict, args, results: list[dict], tetra: dict | None) -> s
                          f"| {s['time_ms']['p99']:.2f} "
                          f"| {s['time_cpu_ms']['median']:.2f} / {s['time_cpu_ms']['p99']:.2f} "
                          f"| {focal} | {honest} | {f['p99_percent']:.3f} "
-                         f"| {s['cross_arcsec_rms']:.2f} | {s['roll_arcsec_rms']:.2f} |")
+                         f"| {s['cross_arcsec_rms']:.2f} | {s['roll_arcsec_rms']:.2f} "
+                         f"| {s['sigma_check']['cross_ratio']:.2f}, "
+                         f"{s['sigma_check']['roll_ratio']:.2f} |")
         sq = res["sequence"]
         lines += ["", f"Tracking (configured focal error {args.focal_errors.split(',')[0]}): "
                   f"{sq['solved']}/{sq['frames']} frames solved, {sq['tracking_frames']} in "
