@@ -94,7 +94,10 @@ class CameraModel:
             r2 = rho * rho
             g = rho * (1.0 + r2 * (self.k1 + self.k2 * r2)) - rho_d
             dg = 1.0 + r2 * (3.0 * self.k1 + 5.0 * self.k2 * r2)
-            rho = rho - g / dg
+            step = g / dg
+            rho = rho - step
+            if not np.any(np.abs(step) > 1e-16 * (1.0 + rho_d)):
+                break   # converged (quadratically: 3-5 steps for real lenses)
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = np.where(rho_d > 0, rho / np.where(rho_d > 0, rho_d, 1.0), 1.0)
         return ud * ratio, vd * ratio

@@ -28,7 +28,8 @@ last attitude and rate (for tracking) and the lens estimate.
    to the catalogue, within three pixels and again, after the attitude,
    the focal length and k1 are fitted to them (tracker.identify.lens,
    priors: the configured lens), within the final radius as in
-   verification; the fit to those gives this frame's focal length and sigma;
+   verification (tracking: once, within the radius of the frame before);
+   the fit to those gives this frame's focal length and sigma;
    the slow lens filter takes the frame's information, and the attitude is
    solved once more through the filtered lens (Wahba), with sigmas from the
    residuals blended with the ``centroid_sigma_px`` prior.
@@ -171,8 +172,10 @@ def _centre_rotation(camera: CameraModel) -> np.ndarray:
     RA/Dec/roll are reported for the image centre (DESIGN.md); with the
     principal point elsewhere (a calibrated lens) the boresight is not there.
     """
-    centre = camera.pixel_to_vector(np.array([(camera.width - 1) / 2.0,
-                                              (camera.height - 1) / 2.0]))
+    middle = ((camera.width - 1) / 2.0, (camera.height - 1) / 2.0)
+    if (camera.cx, camera.cy) == middle:
+        return np.eye(3)     # the principal point's ray is +Z for any lens
+    centre = camera.pixel_to_vector(np.array(middle))
     axis = np.cross(centre, [0.0, 0.0, 1.0])
     s = np.linalg.norm(axis)
     if s < 1e-15:
@@ -231,6 +234,7 @@ class Solver:
         self._last_R: np.ndarray | None = None
         self._last_t: int | None = None
         self._rate: np.ndarray | None = None   # rotation vector rate of R, rad/s
+        self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
 
     def lens_camera(self) -> CameraModel:
         """The camera model with the filtered focal length and k1."""
@@ -446,13 +450,19 @@ class Solver:
         camera = self.lens_camera()
         if f_px is not None:
             camera = dataclasses.replace(camera, f_px=f_px)
-        ok, which, cat_idx, _ = self._match_catalogue(R, camera, xy, flux, self._first_radius())
-        if np.count_nonzero(ok) < 4:
-            return None
-        frame = fit_frame(xy[ok], self._cat_vectors[cat_idx[which[ok]]], R, camera,
-                          self._prior, cfg.centroid_sigma_px)
-        radius = self._final_radius(frame.residuals)
-        ok, which, cat_idx, pred = self._match_catalogue(frame.R, frame.camera, xy, flux, radius)
+        if mode == "tracking":
+            # the filtered lens and the tracked attitude are good: one pass, at the
+            # radius the last frame's residuals gave
+            radius = self._radius
+        else:
+            ok, which, cat_idx, _ = self._match_catalogue(R, camera, xy, flux,
+                                                          self._first_radius())
+            if np.count_nonzero(ok) < 4:
+                return None
+            first = fit_frame(xy[ok], self._cat_vectors[cat_idx[which[ok]]], R, camera,
+                              self._prior, cfg.centroid_sigma_px)
+            R, camera, radius = first.R, first.camera, self._final_radius(first.residuals)
+        ok, which, cat_idx, pred = self._match_catalogue(R, camera, xy, flux, radius)
         n = int(np.count_nonzero(ok))
         if prob is None:
             prob = false_match_probability(n, len(xy), len(pred), radius, self._area, 1)
@@ -461,7 +471,8 @@ class Solver:
         if n < 4:
             return None
         ref = self._cat_vectors[cat_idx[which[ok]]]
-        frame = fit_frame(xy[ok], ref, frame.R, frame.camera, self._prior, cfg.centroid_sigma_px)
+        frame = fit_frame(xy[ok], ref, R, camera, self._prior, cfg.centroid_sigma_px)
+        self._radius = self._final_radius(frame.residuals)
         self.lens.update(frame, t_ns)
         state = self.lens.state()
         lens_cam = dataclasses.replace(self.camera, f_px=state.f_px, k1=state.k1)

@@ -41,21 +41,22 @@ class Projector:
     def __init__(self, vectors: np.ndarray) -> None:
         self.vectors = np.ascontiguousarray(vectors, dtype=np.float64)
         self.index = DecSorted(self.vectors)
-        self._cones: dict[tuple, float] = {}
 
-    def _cone_radius(self, camera: CameraModel) -> float:
-        """Angle from the optical axis to the farthest image corner, plus two pixels."""
-        key = (camera.width, camera.height, camera.f_px, camera.cx, camera.cy, camera.k1,
-               camera.k2)
-        if key not in self._cones:
-            if len(self._cones) > 64:
-                self._cones.clear()
-            w, h = camera.width - 0.5, camera.height - 0.5
-            corners = camera.pixel_to_vector(np.array([[-0.5, -0.5], [w, -0.5], [-0.5, h],
-                                                       [w, h]]))
-            self._cones[key] = float(np.arccos(np.clip(corners[:, 2].min(), -1.0, 1.0))
-                                     + 2.0 / camera.f_px)
-        return self._cones[key]
+    @staticmethod
+    def _cone_radius(camera: CameraModel) -> float:
+        """An angle from the optical axis beyond every image corner.
+
+        The farthest corner's distance from the principal point, undistorted
+        to first order (rho / (1 + k1 rho^2 + k2 rho^4), exact for k1 = k2 = 0),
+        1 % and two pixels added: distortion that bends it more than 1 % at
+        the corner is far beyond any lens the solver serves.
+        """
+        dx = max(camera.cx + 0.5, camera.width - 0.5 - camera.cx)
+        dy = max(camera.cy + 0.5, camera.height - 0.5 - camera.cy)
+        rho = math.hypot(dx, dy) / camera.f_px
+        r2 = rho * rho
+        rho /= max(0.5, 1.0 + r2 * (camera.k1 + camera.k2 * r2))
+        return 1.01 * math.atan(rho) + 2.0 / camera.f_px
 
     def predict(self, R: np.ndarray, camera: CameraModel, margin_px: float = 0.0
                 ) -> tuple[np.ndarray, np.ndarray]:
