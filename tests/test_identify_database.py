@@ -1,7 +1,9 @@
 """Pattern databases: what a build holds, the index, the cache, ``tracker database``."""
 
 import hashlib
+import io
 import itertools
+import json
 import math
 from pathlib import Path
 
@@ -139,6 +141,21 @@ def test_cache_builds_once_and_reuses(tmp_path):
         assert again.bound.path == first.bound.path
     assert calls == []
     assert sorted(p.name for p in tmp_path.iterdir()) == [path.name, f"{path.name}.sha256"]
+
+
+def test_a_corrupt_cached_database_is_built_again(tmp_path):
+    cfg = IdentifyConfig(cache_dir=str(tmp_path))
+    path = Path(make_solver(cfg, camera(8.0), catalogue()).bound.path)
+    good = path.read_bytes()
+    with np.load(path) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    arrays["hip"] = arrays["hip"][::-1].copy()
+    np.savez(path, **arrays)
+    calls = []
+    solver = make_solver(cfg, camera(8.0), catalogue(), lambda s, f: calls.append(s))
+    assert calls and solver.bound.path == str(path)
+    assert PatternDatabase.load(path).meta["sha256"] == \
+        json.loads(str(np.load(io.BytesIO(good))["meta"]))["sha256"]
 
 
 def test_a_design_serves_its_lens_over_the_whole_prior():

@@ -57,18 +57,29 @@ def database_for(cfg: IdentifyConfig, camera: CameraModel, catalogue,
     With ``cfg.database`` null a database serving the camera over the whole
     focal-length prior is looked for in catalogue/ and the cache folder
     (tracker.identify.cache) and built into the cache folder when none
-    does (logged, or reported to ``progress(stage, fraction)``).
+    does (logged, or reported to ``progress(stage, fraction)``). A cached
+    database that fails its checksum is built again.
     """
     if cfg.database is not None:
         return PatternDatabase.load(cfg.database)
     f_low = camera.f_px * (1.0 - cfg.focal_tolerance)
     f_high = camera.f_px * (1.0 + cfg.focal_tolerance)
     folder = cache_dir(cfg.cache_dir)
+    progress = progress or ProgressLines(
+        _log.info, prefix="building the pattern database (once; `tracker database build` "
+        "does it ahead of time)")
     path = find_or_build(camera, f_low, f_high, catalogue.path or None, catalogue.sha256,
-                         folder, progress or ProgressLines(
-                             _log.info, prefix="building the pattern database (once; "
-                             "`tracker database build` does it ahead of time)"))
-    return PatternDatabase.load(path)
+                         folder, progress)
+    try:
+        return PatternDatabase.load(path)
+    except DatabaseError as exc:
+        if path.parent != folder:
+            raise                     # not ours to replace
+        _log.warning("%s; building it again", exc)
+        path.unlink()
+        path = find_or_build(camera, f_low, f_high, catalogue.path or None,
+                             catalogue.sha256, folder, progress)
+        return PatternDatabase.load(path)
 
 
 def make_solver(cfg: IdentifyConfig, camera: CameraModel, catalogue,

@@ -189,7 +189,7 @@ def _region_members(centres: np.ndarray, vectors: np.ndarray, radius: float, cou
     budget = 4_000_000
     start = 0
     while start < len(order):
-        # grow the chunk while its band keeps the work bounded
+        # up to 256 centres, fewer while centres x band stars exceed the budget
         size = max(1, min(len(order) - start, 256))
         rows = order[start:start + size]
         z_lo, z_hi = centres[rows[0], 2], centres[rows[-1], 2]
