@@ -82,10 +82,14 @@ class Pipeline:
             self._solver = make_solver(self.cfg.identify, self.camera, self.catalogue)
         return self._solver
 
-    def reset(self) -> None:
-        """Forget the tracking state: the next frame is solved lost in space."""
+    def reset(self, lens: bool = False) -> None:
+        """Forget the tracking state: the next frame is solved lost in space.
+
+        ``lens`` also forgets the solver's running focal-length estimate
+        (tracker.identify.solver.Solver.reset).
+        """
         if self._solver is not None:
-            self._solver.reset()
+            self._solver.reset(lens=lens)
 
     def process(self, image: np.ndarray, bit_depth: int, t_ns: int) -> FrameResult:
         """Detect, identify and solve one frame; never raises on bad pixels.
