@@ -120,6 +120,8 @@ def fixture_corpus(tmp_path_factory) -> dict[str, str]:
     c["yaml_latin1"] = str(tmp / "latin1.yaml")
     (tmp / "small_camera.yaml").write_text("camera: {width: 512, height: 512}\n")
     c["yaml_small_camera"] = str(tmp / "small_camera.yaml")
+    (tmp / "telescope.yaml").write_text("camera: {focal_length_mm: 3000}\n")   # 0.1 deg
+    c["yaml_telescope"] = str(tmp / "telescope.yaml")
     return c
 
 
@@ -226,6 +228,18 @@ CASES: list[tuple[str, list[str], int, str | None]] = [
     ("selftest-bad-config", ["selftest", "--config", "{yaml_big_int}"], 2, "characters"),
     ("selftest-missing-catalogue", ["selftest", "--config", "{yaml_missing_catalogue}"], 1,
      None),
+    # -- database ------------------------------------------------------------------------
+    ("database-no-action", ["database"], 2, "required"),
+    ("database-unknown-action", ["database", "frobnicate"], 2, "invalid choice"),
+    ("database-cache-is-a-file", ["database", "build", "--cache-dir", "{a_file}"], 2,
+     "cannot write the pattern database"),
+    ("database-field-too-narrow", ["database", "build", "--config", "{yaml_telescope}",
+                                   "--cache-dir", "{tmp}/db"], 2, "outside the 3-80 deg"),
+    ("database-missing-catalogue", ["database", "build", "--config",
+                                    "{yaml_missing_catalogue}", "--cache-dir", "{tmp}/db"], 2,
+     "catalogue file not found"),
+    ("database-bad-config", ["database", "list", "--config", "{yaml_duplicate}"], 2,
+     "second time"),
     # -- monitor -----------------------------------------------------------------------------
     ("monitor-no-port", ["monitor"], 2, "no serial port given"),
     ("monitor-port-after-send", ["monitor", "--send", "ping", "{tmp}/no-such-port"], 2,

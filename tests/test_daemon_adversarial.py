@@ -284,6 +284,7 @@ def test_a_hostile_flight_computer_leaves_the_daemon_up_and_answered(tmp_path):
         # 9. a PING flood at line rate (921600 baud: 7680 PINGs/s) for one second:
         #    replies may be shed, ATTITUDE is not: every frame's ATTITUDE arrives
         first = len(handed)
+        before = link.link.stats()
         chunk = b"".join(fc.encoder.encode(MsgId.PING) for _ in range(77))   # 10 ms
         t_end = time.monotonic() + 1.0
         while time.monotonic() < t_end:
@@ -292,9 +293,11 @@ def test_a_hostile_flight_computer_leaves_the_daemon_up_and_answered(tmp_path):
         last = len(handed)
         flood_frames = set(handed[first:last])
         fc.wait_for(lambda ps: flood_frames <= {a["frame_id"] for a in attitudes(ps)})
+        # (drops are counted over the flood only: before it, a machine loaded by other
+        # work may starve the writer thread for a few frames, which drop-oldest allows)
         stats = link.link.stats()
-        assert stats.get("dropped_full_attitude", 0) == 0
-        assert stats.get("dropped_stale_attitude", 0) == 0
+        for key in ("dropped_full_attitude", "dropped_stale_attitude"):
+            assert stats.get(key, 0) == before.get(key, 0), key
 
         # the end: the service is up, answers, and stops cleanly
         key = fc.send(MsgId.PING)

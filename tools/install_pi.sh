@@ -11,7 +11,8 @@
 #      numpy<2 and opencv-python-headless==4.11.0.86 (PI5-NOTES.md section 2), and
 #      pytest, for the on-device tests (README "On-device checks");
 #   3. creates the unprivileged user "startracker" (groups video, dialout, i2c);
-#   4. installs /etc/startracker/config.yaml (only if absent), the udev rule, the
+#   4. installs /etc/startracker/config.yaml (only if absent), builds the pattern
+#      database its lens needs into /var/lib/startracker, installs the udev rule, the
 #      config.txt fragment and the cmdline.txt console change (backups kept);
 #   5. installs and enables systemd/startracker.service.
 # Arducam's libcamera (needed for the OV2311 Pivariety) is NOT installed here:
@@ -85,6 +86,11 @@ if [ ! -e "$ETC/config.yaml" ]; then
     install -m 0644 "$SRC/firmware_config/config.yaml" "$ETC/config.yaml"
 fi
 "$PREFIX/.venv/bin/tracker" config --config "$ETC/config.yaml" >/dev/null
+# The lost-in-space pattern database for the configured lens, built now (seconds to a
+# minute on a Pi) into the unit's StateDirectory, so the service's first start does not.
+install -d -m 0750 -o "$SERVICE_USER" -g "$SERVICE_USER" /var/lib/startracker
+runuser -u "$SERVICE_USER" -- "$PREFIX/.venv/bin/tracker" database build \
+    --config "$ETC/config.yaml" --cache-dir /var/lib/startracker
 install -m 0644 "$SRC/firmware_config/99-startracker.rules" /etc/udev/rules.d/99-startracker.rules
 udevadm control --reload || true
 udevadm trigger --subsystem-match=tty || true

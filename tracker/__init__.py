@@ -10,8 +10,11 @@ Each frame flows one way::
   (``tracker.capture.backends.make_source(cfg)`` picks the backend).
 * :mod:`tracker.detect` finds stars with a fixed-memory detector
   (``make_detector(cfg.detect, shape, bit_depth).detect(image)``).
-* :mod:`tracker.identify` identifies them lost in space or by tracking and
-  solves the attitude (``make_solver(cfg.identify, camera, catalogue)``);
+* :mod:`tracker.identify` identifies them lost in space (four-star patterns
+  whose code does not depend on the focal length, so a lens label a few
+  percent off is found) or by tracking, and solves the attitude and the
+  focal length (``make_solver(cfg.identify, camera, catalogue)``; the
+  pattern database for the field is built once into a cache);
   :mod:`tracker.attitude` holds the conventions and Wahba's problem.
 * :mod:`tracker.protocol` frames packets for the flight computer, as
   ``docs/protocol.md`` specifies, and runs the serial link.

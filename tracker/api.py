@@ -146,7 +146,7 @@ def _pipeline(cfg: Config) -> Pipeline:
         if cfg.identify.enabled:
             pipeline.solver  # noqa: B018 - the catalogue's and database's errors, now
     _pipelines[cfg] = pipeline
-    pipeline.reset()
+    pipeline.reset(lens=True)   # each call stands alone: no pointing or lens carried over
     return pipeline
 
 

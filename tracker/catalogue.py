@@ -29,6 +29,7 @@ about a minute, irrelevant for proper motion).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import io
 import math
@@ -96,6 +97,11 @@ class Catalogue:
         Faintest Hp kept (the file's own limit when none was asked for).
     sha256 : str
         SHA-256 (hex) of the catalogue file, to tie derived data to it.
+    path : str
+        The file it was read from.
+    follow_field : bool
+        True when no magnitude limit was asked for: users of the catalogue
+        (the solver) may keep only the stars their field needs.
 
     The arrays are read-only.
     """
@@ -109,6 +115,8 @@ class Catalogue:
     epoch_year: float
     mag_limit: float
     sha256: str
+    path: str = ""
+    follow_field: bool = False
 
     def __len__(self) -> int:
         return int(self.hip.shape[0])
@@ -117,6 +125,14 @@ class Catalogue:
     def from_config(cls, cfg: CatalogueConfig) -> Catalogue:
         """Load the catalogue the ``catalogue`` config section describes."""
         return load_catalogue(cfg.path, epoch_year=cfg.epoch_year, mag_limit=cfg.mag_limit)
+
+    def brightest(self, mag_limit: float) -> Catalogue:
+        """The stars with Hp <= mag_limit (a prefix: views, no copies), as a fixed limit."""
+        n = int(np.searchsorted(self.mag, np.float32(mag_limit), side="right"))
+        return dataclasses.replace(
+            self, hip=self.hip[:n], ra=self.ra[:n], dec=self.dec[:n], vectors=self.vectors[:n],
+            mag=self.mag[:n], bv=self.bv[:n], mag_limit=min(self.mag_limit, float(mag_limit)),
+            follow_field=False)
 
 
 def default_catalogue_path() -> Path:
@@ -212,8 +228,9 @@ def load_catalogue(path: str | Path | None = None, epoch_year: float | None = No
     ----------
     path : file, or None for :func:`default_catalogue_path`.
     epoch_year : decimal Julian year of the positions; None = now.
-    mag_limit : faintest Hp magnitude kept; None = every star in the file.
-        Asking for fainter stars than the file holds is an error.
+    mag_limit : faintest Hp magnitude kept; None = every star in the file,
+        with ``follow_field`` set. Asking for fainter stars than the file
+        holds is an error.
 
     Raises
     ------
@@ -225,6 +242,7 @@ def load_catalogue(path: str | Path | None = None, epoch_year: float | None = No
     data, digest = _read_checked(path)
     arrays = _read_arrays(path, data)
     file_limit = float(arrays["mag_limit"])
+    follow_field = mag_limit is None
     if mag_limit is None:
         mag_limit = file_limit
     elif not math.isfinite(mag_limit):
@@ -245,4 +263,5 @@ def load_catalogue(path: str | Path | None = None, epoch_year: float | None = No
               "mag": arrays["hp_mag"][:n], "bv": arrays["bv_mag"][:n]}
     for array in fields.values():
         array.flags.writeable = False
-    return Catalogue(**fields, epoch_year=epoch, mag_limit=float(mag_limit), sha256=digest)
+    return Catalogue(**fields, epoch_year=epoch, mag_limit=float(mag_limit), sha256=digest,
+                     path=str(path), follow_field=follow_field)

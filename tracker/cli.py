@@ -39,6 +39,7 @@ COMMAND_MODULES = (
     "tracker.commands.selftest",
     "tracker.commands.monitor",
     "tracker.commands.calibrate",
+    "tracker.commands.database",
     "tracker.commands.validate",
 )
 

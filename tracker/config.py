@@ -75,10 +75,10 @@ class CameraConfig:
 class CatalogueConfig:
     """The bundled Hipparcos-derived star list (tracker.catalogue).
 
-    mag_limit 7.5 keeps 23,270 stars: at least 19 (95 % of pointings: 31)
-    in the smallest field, 11 x 8.9 deg with the 25 mm lens, and it covers
-    the stars solved in the real test frames (Hp to ~7.5); the bundled file
-    holds Hp <= 8.0 for narrower fields (catalogue/README.md).
+    The bundled file holds the 78,352 stars with Hp <= 9.0. With mag_limit
+    null the solver takes as many as the field needs (catalogue/README.md):
+    about 150 stars in an average frame, never fewer than its pattern
+    database uses; a number makes that the limit for everything.
     """
 
     path: str | None = knob(None, "catalogue file (with <file>.sha256 beside it); "
@@ -91,9 +91,9 @@ class CatalogueConfig:
         0.01, "re-propagate the catalogue when a frame's absolute time is further than this "
         "from its epoch (the fastest star, 7.06 arcsec/yr, is then off by at most 0.07 "
         "arcsec; the next frame is solved lost in space)", "yr", min=0.0001, max=100.0)
-    mag_limit: float = knob(7.5, "faintest Hipparcos Hp magnitude used; at most the "
-                            "file's own limit (8.0 for the bundled file)", "mag",
-                            min=-2.0, max=12.5)
+    mag_limit: float | None = knob(None, "faintest Hipparcos Hp magnitude used; null = what "
+                                   "the camera's field needs; at most the file's own limit "
+                                   "(9.0 for the bundled file)", "mag", min=-2.0, max=12.5)
 
 
 @dataclass(frozen=True)
@@ -244,16 +244,33 @@ class IdentifyConfig:
     """Star identification (tracker.identify)."""
 
     enabled: bool = knob(True, "identify stars and solve attitude")
-    database: str | None = knob(None, "pattern database file; null = the catalogue/ "
-                                "patterns_*.npz whose field-of-view range holds the "
-                                "camera's", "path")
-    pattern_stars: int = knob(12, "brightest image stars whose triangles lost-in-space tries",
-                              "stars", min=3, max=64)
+    database: str | None = knob(None, "pattern database file; null = one that fits the "
+                                "camera, from catalogue/ or the cache folder, built there "
+                                "on first use", "path")
+    cache_dir: str | None = knob(None, "folder of built pattern databases; null = "
+                                 "$STATE_DIRECTORY (the systemd unit's StateDirectory), else "
+                                 "$XDG_CACHE_HOME/startracker, else ~/.cache/startracker",
+                                 "path")
+    focal_tolerance: float = knob(0.06, "lost in space finds the focal length within this "
+                                  "fraction of camera.focal_length_mm (0.06 covers a label "
+                                  "up to 5 % off either way)", "fraction", min=0.0, max=0.3)
+    focal_search: float = knob(0.3, "when lost in space fails, search this wider fraction to "
+                               "say which focal length the stars fit (the frame stays "
+                               "failed); 0 = off", "fraction", min=0.0, max=0.5)
+    distortion_px: float = knob(3.0, "prior on the radial distortion (k1) to fit: one sigma "
+                                "of its displacement at the image corner", "px", min=0.0,
+                                max=1000.0)
+    lens_time_constant_s: float = knob(600.0, "memory of the slow filter of focal length "
+                                       "and k1 over solved frames (they drift with "
+                                       "temperature); 0 = no forgetting", "s", min=0.0,
+                                       max=1e7)
+    pattern_stars: int = knob(12, "brightest image stars whose four-star patterns lost in "
+                              "space tries", "stars", min=4, max=64)
     verify_stars: int = knob(40, "brightest image stars checked against a hypothesis",
-                             "stars", min=4, max=1024)
-    pair_tolerance_px: float = knob(1.5, "half-width of the band of catalogue separations "
-                                    "each image separation selects", "px", min=0.01,
-                                    max=100.0)
+                             "stars", min=5, max=1024)
+    pattern_tolerance_px: float = knob(2.0, "largest error expected on the length of a "
+                                       "pattern's edge (centroid errors plus unmodelled "
+                                       "distortion)", "px", min=0.01, max=100.0)
     match_radius_px: float = knob(1.0, "an image star matches a predicted catalogue star "
                                   "within this distance; the chance of a false match grows "
                                   "with its square, so keep it a few times the centroid "
@@ -262,13 +279,14 @@ class IdentifyConfig:
                                  "is below this (per frame; tracker.identify.verify)",
                                  "probability", min=1e-30, max=0.5)
     min_matched: int = knob(5, "fewest matched stars for an accepted attitude", "stars",
-                            min=4, max=1000)
-    max_triads: int = knob(400, "lost in space: most image triangles tried per frame",
-                           "triangles", min=1, max=100000)
-    max_lis_ms: float = knob(250.0, "lost in space: give up after this long", "ms",
-                             min=1.0, max=60000.0)
-    min_separation_px: float = knob(8.0, "triangle stars closer together than this are "
-                                    "not used", "px", min=0.0, max=10000.0)
+                            min=5, max=1000)
+    max_patterns: int = knob(500, "lost in space: most image patterns looked up per frame "
+                             "(a work budget: the same stars give the same answer on any "
+                             "machine)", "patterns", min=1, max=100000)
+    max_hypotheses: int = knob(500, "lost in space: most hypotheses verified per frame",
+                               "hypotheses", min=1, max=100000)
+    min_separation_px: float = knob(8.0, "patterns with two stars closer together than "
+                                    "this are not tried", "px", min=0.0, max=10000.0)
     duplicate_px: float = knob(0.5, "centroids closer than this are one star (the fainter "
                                "is dropped)", "px", min=0.0, max=100.0)
     centroid_sigma_px: float = knob(0.25, "prior centroid noise per axis, blended with the "

@@ -22,6 +22,7 @@ loaded).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections import OrderedDict
@@ -31,7 +32,7 @@ import numpy as np
 
 from tracker.astrometry.observer import Observer
 from tracker.camera import CameraModel
-from tracker.catalogue import Catalogue, load_catalogue
+from tracker.catalogue import Catalogue
 from tracker.config import Config
 from tracker.detect import Detections, Detector, make_detector
 from tracker.frame_array import to_grey
@@ -98,10 +99,14 @@ class Pipeline:
             self._solver = make_solver(self.cfg.identify, self.camera, self.catalogue)
         return self._solver
 
-    def reset(self) -> None:
-        """Forget the tracking state: the next frame is solved lost in space."""
+    def reset(self, lens: bool = False) -> None:
+        """Forget the tracking state: the next frame is solved lost in space.
+
+        ``lens`` also forgets the solver's running focal-length estimate
+        (tracker.identify.solver.Solver.reset).
+        """
         if self._solver is not None:
-            self._solver.reset()
+            self._solver.reset(lens=lens)
 
     def solve_stars(self, stars, t_ns: int, observer: Observer | None = None) -> Solution:
         """Identify stars and solve the attitude, the catalogue at the observer's epoch.
@@ -123,8 +128,8 @@ class Pipeline:
         if loaded is not None:
             log.info("catalogue propagated from epoch %.4f to %.4f, the frames' time "
                      "(tracking starts again)", loaded.epoch_year, epoch)
-        self._catalogue = load_catalogue(self.cfg.catalogue.path, epoch_year=epoch,
-                                         mag_limit=self.cfg.catalogue.mag_limit)
+        self._catalogue = Catalogue.from_config(dataclasses.replace(self.cfg.catalogue,
+                                                                    epoch_year=epoch))
         self._solver = None
 
     def process(self, image: np.ndarray, bit_depth: int, t_ns: int,

@@ -8,8 +8,10 @@ Used by ``tracker replay``, ``run --replay``, ``record --replay``,
 * a folder named gives the regular files directly inside it whose names end
   with one of ``suffixes`` (case-insensitive), sorted by name; subfolders,
   named pipes and devices inside it are passed over;
-* with ``companion`` (e.g. ``".centroids.json"``), a folder holding both
-  ``X`` and ``X`` + companion lists only the latter: one frame, once;
+* with ``companion`` (e.g. ``".centroids.json"``), ``X`` is left out when
+  ``X`` + companion is among the inputs too: one frame, once;
+* a file reached twice (named, and inside a folder named) is listed once,
+  where it first came;
 * a path that does not exist, a named pipe, a device, or a folder with no
   matching file is a :class:`~tracker.errors.UserError` naming it (one line,
   exit status 2), before any file is read.
@@ -32,12 +34,8 @@ def _matches(name: str, suffixes: Sequence[str]) -> bool:
     return any(lowered.endswith(s) for s in suffixes)
 
 
-def _folder_files(folder: Path, suffixes: Sequence[str], companion: str | None) -> list[Path]:
-    files = sorted(f for f in folder.iterdir() if f.is_file() and _matches(f.name, suffixes))
-    if companion:
-        names = {f.name for f in files}
-        files = [f for f in files if f.name + companion not in names]
-    return files
+def _folder_files(folder: Path, suffixes: Sequence[str]) -> list[Path]:
+    return sorted(f for f in folder.iterdir() if f.is_file() and _matches(f.name, suffixes))
 
 
 def expand_inputs(paths: Sequence[str | os.PathLike], suffixes: Sequence[str], *,
@@ -55,7 +53,7 @@ def expand_inputs(paths: Sequence[str | os.PathLike], suffixes: Sequence[str], *
             raise UserError(f"{path}: cannot look at it ({exc.strerror or exc})") from None
         if path.is_dir():
             try:
-                found = _folder_files(path, suffixes, companion)
+                found = _folder_files(path, suffixes)
             except OSError as exc:
                 raise UserError(f"{path}: cannot list the folder ({exc.strerror or exc})") \
                     from None
@@ -67,4 +65,18 @@ def expand_inputs(paths: Sequence[str | os.PathLike], suffixes: Sequence[str], *
         else:
             raise UserError(f"{path}: {describe_kind(mode)}, expected one of the {what} "
                             f"({', '.join(suffixes)}) or a folder of them")
+    return _once(out, companion)
+
+
+def _once(files: list[Path], companion: str | None) -> list[Path]:
+    """``files`` without repeats, and without the X whose X + companion is listed."""
+    listed = {str(f.resolve()) for f in files}
+    seen: set[str] = set()
+    out = []
+    for f in files:
+        key = str(f.resolve())
+        if key in seen or (companion and key + companion in listed):
+            continue
+        seen.add(key)
+        out.append(f)
     return out
