@@ -89,7 +89,7 @@ class CatalogueConfig:
         "a replay's utc) sets the epoch instead", "yr", min=1900.0, max=2200.0)
     epoch_step_years: float = knob(
         0.01, "re-propagate the catalogue when a frame's absolute time is further than this "
-        "from its epoch (the fastest star, 7.06 arcsec/yr, is then off by at most 0.07 "
+        "from its epoch (the fastest star, 8.67 arcsec/yr, is then off by at most 0.09 "
         "arcsec; the next frame is solved lost in space)", "yr", min=0.0001, max=100.0)
     mag_limit: float | None = knob(None, "faintest Hipparcos Hp magnitude used; null = what "
                                    "the camera's field needs; at most the file's own limit "

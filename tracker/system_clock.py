@@ -6,17 +6,18 @@ TAI = UTC + the leap-second count (tracker.astrometry.timescale), so
 ``TAI - monotonic`` is an offset that turns a frame's ``t_ns`` into TAI.
 
 Whether the system clock deserves that trust is the configuration's call
-(``time.system_clock``), because a Raspberry Pi has no battery-backed clock
-by default: it boots with the time it saved at shutdown
-(systemd-timesyncd's clock file, or fake-hwclock), possibly months old,
-until NTP corrects it. With ``synchronised`` the tracker asks the kernel,
-as ``timedatectl``'s "System clock synchronized" does (systemd's
-timedated): ``adjtimex()``'s maximum error below 16 s. NTP and PTP daemons
-(systemd-timesyncd, chrony, ntpd, ptp4l with phc2sys) set that error at
-each synchronisation; the kernel then grows it by 500 us per second, so a
-clock that lost its server counts as synchronised for up to 8.9 hours,
-by when it may be a few seconds off. Aberration needs far less: an hour of
-error moves the annual aberration by 0.015 arcsec.
+(``time.system_clock``), because a Raspberry Pi 5 keeps time through a
+power-off only with its optional RTC battery: without it, it boots with the
+time it saved at shutdown (systemd-timesyncd's clock file, or
+fake-hwclock), possibly months old, until NTP corrects it. With
+``synchronised`` the tracker asks the kernel, as ``timedatectl``'s "System
+clock synchronized" does (systemd's timedated): ``adjtimex()``'s maximum
+error below 16 s. NTP and PTP daemons (systemd-timesyncd, chrony, ntpd,
+ptp4l with phc2sys) set that error at each synchronisation; the kernel then
+grows it by 500 us per second, so a clock that lost its server counts as
+synchronised for up to 8.9 hours, by when it may be a few seconds off.
+Aberration needs far less: an hour of error moves the annual aberration by
+0.015 arcsec.
 """
 
 from __future__ import annotations
