@@ -6,4 +6,7 @@
   analytic model (about 0.01 km/s).
 * :mod:`~tracker.astrometry.aberration`: apparent directions for a moving
   observer (special relativity).
+* :mod:`~tracker.astrometry.observer`: one frame's observer context (its
+  absolute time, the observer's velocity, where the time came from, and so
+  what the solver corrects).
 """
