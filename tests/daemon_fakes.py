@@ -137,12 +137,14 @@ class FakePipeline:
         self.tags = tags or {}
         self.resets = 0
         self.seen = []
+        self.observer = None           # the latest frame's context
 
     def reset(self):
         self.resets += 1
 
-    def process(self, image, bit_depth, t_ns):
+    def process(self, image, bit_depth, t_ns, observer=None):
         self.seen.append(t_ns)
+        self.observer = observer
         tag = self.tags.get(t_ns, SOLVED)
         if tag == RAISE:
             raise ValueError("boom")
@@ -151,7 +153,7 @@ class FakePipeline:
         sol = SimpleNamespace(ok=tag == SOLVED, q=np.array([1.0, 0, 0, 0]),
                               sigma_cross_arcsec=2.0, sigma_roll_arcsec=20.0, matched=12,
                               rate_rad_s=None, hip=np.zeros(5, np.int32))
-        return FrameResult(Detections(stars), sol, 1.0, {"detect.x": 0.5})
+        return FrameResult(Detections(stars), sol, 1.0, {"detect.x": 0.5}, None, observer)
 
 
 class FakeLink:
@@ -164,6 +166,7 @@ class FakeLink:
         self.sent = []                 # (frame index, mode, solved or None for STANDBY)
         self.snapshots = []            # (clock ns or None, StatusSnapshot)
         self.pending = []              # Commands values handed out one per take
+        self.observers = []            # the observer context of each frame sent
         self.clock = clock
 
     def open(self):
@@ -181,9 +184,10 @@ class FakeLink:
     def counts(self):
         return LinkCounts({}, 0, 0)
 
-    def send_frame(self, frame, result, mode):
+    def send_frame(self, frame, result, mode, observer):
         solved = None if result is None else bool(result.solution.ok)
         self.sent.append((frame.index, mode, solved))
+        self.observers.append(observer)
 
     def statuses(self):
         return [(t, status_values(s)) for t, s in self.snapshots]

@@ -86,6 +86,12 @@ def fixture_corpus(tmp_path_factory) -> dict[str, str]:
         shutil.copyfile(tmp / name, bad / name)
     shutil.copyfile(REAL / "orion_belt.jpg", bad / "zz_good.jpg")
     c["bad_frames"] = str(bad)
+    # frames whose record's absolute time is not a time
+    badtime = tmp / "bad_time"
+    badtime.mkdir()
+    shutil.copyfile(REAL / "orion_belt.jpg", badtime / "f.jpg")
+    (badtime / "frames.jsonl").write_text('{"file": "f.jpg", "utc": "2026-02-30T00:00:00Z"}\n')
+    c["bad_time"] = str(badtime)
     # validate/calibrate inputs: a frame with a truth file that is not JSON, one with none
     shutil.copyfile(REAL / "orion_belt.jpg.centroids.json", tmp / "lone.jpg.centroids.json")
     c["lone_centroids"] = str(tmp / "lone.jpg.centroids.json")
@@ -159,6 +165,7 @@ CASES: list[tuple[str, list[str], int, str | None]] = [
     ("replay-report-loop", ["replay", "{bad_frames}", "--report", "{tmp}/r2", "--loop"], 2,
      "leave out --loop"),
     ("replay-fps-nan", ["replay", "{bad_frames}", "--fps", "nan"], 2, "finite"),
+    ("replay-bad-utc", ["replay", "{bad_time}"], 2, "frames.jsonl line 1: utc"),
     ("replay-missing-catalogue", ["replay", "{bad_frames}", "--config",
                                   "{yaml_missing_catalogue}"], 2, "catalogue file not found"),
     ("replay-corrupt-catalogue", ["replay", "{bad_frames}", "--config",
@@ -181,6 +188,8 @@ CASES: list[tuple[str, list[str], int, str | None]] = [
     ("run-corrupt-catalogue", ["run", "--replay", "{bad_frames}", "--port", "loop://",
                                "--config", "{yaml_corrupt_catalogue}"], 2, "SHA-256 mismatch"),
     ("run-fps-nan", ["run", "--replay", "{bad_frames}", "--fps", "nan"], 2, "finite"),
+    ("run-bad-utc", ["run", "--replay", "{bad_time}", "--port", "loop://"], 2,
+     "no such date"),
     ("run-frames-negative", ["run", "--replay", "{bad_frames}", "--frames", "-3"], 2,
      "0 or more"),
     ("run-bad-config", ["run", "--config", "{yaml_exposure_order}"], 2, "exposure_min_us"),
@@ -198,6 +207,11 @@ CASES: list[tuple[str, list[str], int, str | None]] = [
      "finite"),
     # -- simulate ----------------------------------------------------------------------------
     ("simulate-out-is-a-file", ["simulate", "--out", "{a_file}"], 2, None),
+    ("simulate-utc-2300", ["simulate", "--out", "{tmp}/sim", "--utc", "2300-01-01T00:00:00Z"],
+     2, "outside 1972-2200"),
+    ("simulate-velocity-huge", ["simulate", "--out", "{tmp}/sim", "--utc",
+                                "2030-01-01T00:00:00Z", "--observer-velocity-km-s", "1e9", "0",
+                                "0"], 2, "within +-200"),
     ("simulate-huge-camera", ["simulate", "--out", "{tmp}/sim", "--config",
                               "{yaml_huge_camera}"], 2, "pixels"),
     ("simulate-frames-zero", ["simulate", "--out", "{tmp}/sim", "--frames", "0"], 2, ">= 1"),

@@ -21,6 +21,8 @@ import numpy as np
 import pytest
 from daemon_fakes import FakePipeline
 
+from tracker.astrometry.observer import TimeSource
+from tracker.astrometry.timescale import TAI_NS_MAX, TAI_NS_MIN
 from tracker.capture.base import Frame
 from tracker.capture.live import CameraError
 from tracker.config import Config
@@ -153,8 +155,8 @@ def test_a_hostile_flight_computer_leaves_the_daemon_up_and_answered(tmp_path):
     link = DaemonLink(cfg)
     handed = []                                # frame ids the loop gave the link, in order
     send_frame = link.send_frame
-    link.send_frame = lambda frame, result, mode: (handed.append(frame.index),
-                                                   send_frame(frame, result, mode))
+    link.send_frame = lambda frame, *rest: (handed.append(frame.index),
+                                            send_frame(frame, *rest))
     camera = Camera()
     daemon = Daemon(cfg, source_factory=camera, pipeline=pipeline, link=link,
                     notifier=Notifier(""))
@@ -196,31 +198,48 @@ def test_a_hostile_flight_computer_leaves_the_daemon_up_and_answered(tmp_path):
                (MsgId.SET_OUTPUT, {"msg_id": MsgId.ATTITUDE, "rate_hz": 1e-45}),
                (MsgId.SET_OUTPUT, {"msg_id": MsgId.ATTITUDE, "rate_hz": 100.5}),
                (MsgId.SET_OUTPUT, {"msg_id": MsgId.ATTITUDE, "rate_hz": math.nan}),
+               (MsgId.TIME_SYNC, {"fc_time_ns": 0}),
+               (MsgId.TIME_SYNC, {"fc_time_ns": TAI_NS_MIN - 1}),
+               (MsgId.TIME_SYNC, {"fc_time_ns": TAI_NS_MAX + 1}),
                (MsgId.TIME_SYNC, {"fc_time_ns": 2**63}),
-               (MsgId.TIME_SYNC, {"fc_time_ns": 2**64 - 1})]
+               (MsgId.TIME_SYNC, {"fc_time_ns": 2**64 - 1}),
+               (MsgId.SET_VELOCITY, {"t_ns": 0, "vx_km_s": 0.0, "vy_km_s": 0.0,
+                                     "vz_km_s": 0.0}),
+               (MsgId.SET_VELOCITY, {"t_ns": TAI_NS_MIN, "vx_km_s": math.nan,
+                                     "vy_km_s": 0.0, "vz_km_s": 0.0}),
+               (MsgId.SET_VELOCITY, {"t_ns": TAI_NS_MIN, "vx_km_s": 0.0,
+                                     "vy_km_s": -math.inf, "vz_km_s": 0.0}),
+               (MsgId.SET_VELOCITY, {"t_ns": TAI_NS_MIN, "vx_km_s": 0.0, "vy_km_s": 0.0,
+                                     "vz_km_s": 1e6})]
         bad_keys = [fc.send(msg, **values) for msg, values in bad]
         got = fc.wait_for(answered(bad_keys + must_answer))
         assert {replies(got)[k] for k in bad_keys} == {(MsgId.NACK, Reason.OUT_OF_RANGE)}
         assert daemon.exposure.exposure_us == cfg.capture.exposure_us
 
-        # 4. the valid extremes: clamped exposure and gain (item 9), TIME_SYNC 0 and max
+        # 4. the valid extremes: clamped exposure and gain (item 9), TIME_SYNC at the ends
+        # of 1972-2200 TAI (issue 14), a velocity at the limit
         ok_keys = [fc.send(MsgId.SET_EXPOSURE, exposure_us=1_000_000),
                    fc.send(MsgId.SET_GAIN, gain=16.0),
-                   fc.send(MsgId.TIME_SYNC, fc_time_ns=2**63 - 1)]
+                   fc.send(MsgId.TIME_SYNC, fc_time_ns=TAI_NS_MAX),
+                   fc.send(MsgId.TIME_SYNC, fc_time_ns=TAI_NS_MAX - 10**12)]
         got = fc.wait_for(answered(ok_keys))
         assert {replies(got)[k] for k in ok_keys} == {(MsgId.ACK, Reason.OK)}
         n = len(got)
         got = fc.wait_for(lambda ps: sum(p.id == MsgId.ATTITUDE for p in ps[n:]) >= 3)
         synced = attitudes(got[n:])[-1]
-        assert synced["flags"] & AttitudeFlag.TIME_SYNCED and synced["t_ns"] > 2**63
-        ok_keys.append(fc.send(MsgId.TIME_SYNC, fc_time_ns=0))
+        assert synced["flags"] & AttitudeFlag.TIME_SYNCED
+        assert TAI_NS_MAX - 10**12 < synced["t_ns"] < TAI_NS_MAX - 10**12 + 10**10
+        ok_keys.append(fc.send(MsgId.TIME_SYNC, fc_time_ns=TAI_NS_MIN))
+        ok_keys.append(fc.send(MsgId.SET_VELOCITY, t_ns=TAI_NS_MIN, vx_km_s=-200.0,
+                               vy_km_s=200.0, vz_km_s=0.0))
         ok_keys.append(fc.send(MsgId.REQUEST_STATUS))
         got = fc.wait_for(answered(ok_keys))
         n = len(got)
         got = fc.wait_for(lambda ps: sum(p.id == MsgId.ATTITUDE for p in ps[n:]) >= 3)
-        # the FC's clock read 0 at the sync: frames since are a few ms to s on it
-        assert all(0 <= a["t_ns"] < 10**10 for a in attitudes(got[n:]))
+        # the FC's clock read 1972-01-01 at the sync: frames since are ms to s after it
+        assert all(TAI_NS_MIN <= a["t_ns"] < TAI_NS_MIN + 10**10 for a in attitudes(got[n:]))
         status = [p.values for p in got if p.id == MsgId.STATUS][-1]
+        assert status["time_source"] == TimeSource.TIME_SYNC
         assert (status["exposure_us"], status["gain"]) == (cfg.capture.exposure_max_us,
                                                            cfg.capture.gain_max)
         must_answer += ok_keys

@@ -9,8 +9,10 @@ import tty
 
 import numpy as np
 import pytest
-from daemon_fakes import paced_frames
+from daemon_fakes import FakeSource, paced_frames
 
+from tracker.astrometry.observer import Correction, TimeSource
+from tracker.capture.base import Frame
 from tracker.config import Config
 from tracker.daemon import Daemon, DaemonLink
 from tracker.daemon.notify import Notifier
@@ -37,10 +39,10 @@ class Pipeline:
     def reset(self):
         self.resets += 1
 
-    def process(self, image, bit_depth, t_ns):
+    def process(self, image, bit_depth, t_ns, observer):
         stars = np.zeros(3, STAR_DTYPE)
         stars["x"], stars["flux"] = [1.0, 2.0, 3.0], [30.0, 20.0, 10.0]
-        return FrameResult(Detections(stars), Solution(), 1.0, {})
+        return FrameResult(Detections(stars), Solution(), 1.0, {}, None, observer)
 
 
 def read_packets(fd, decoder, until, timeout=5.0):
@@ -125,6 +127,76 @@ def test_fc_commands_garbage_and_telemetry(fc):
         while pipeline.resets == 0 and time.monotonic() < deadline:
             time.sleep(0.01)
         assert pipeline.resets == 1 and svc.mode != Mode.STANDBY
+    finally:
+        svc.request_stop()
+        runner.join(timeout=10)
+    assert not runner.is_alive()
+
+
+def test_time_sync_and_set_velocity_reach_the_solver_and_the_fc_sees_tai(fc):
+    """Issue 14: after TIME_SYNC, t_ns is TAI (TIME_SYNCED) and the solver gets the frame's
+    absolute time; with SET_VELOCITY also the velocity; ATTITUDE and STATUS say what was
+    corrected. Before the sync: the monotonic clock and no correction."""
+    master, port = fc
+    cfg = Config()
+    cfg = dataclasses.replace(cfg, link=dataclasses.replace(cfg.link, port=port,
+                                                            status_rate_hz=20.0),
+                              service=dataclasses.replace(cfg.service, watchdog_s=0.0))
+
+    class Recording(Pipeline):
+        observers = []
+
+        def process(self, image, bit_depth, t_ns, observer):
+            self.observers.append((t_ns, observer))
+            return super().process(image, bit_depth, t_ns, observer)
+
+    def frames():
+        i = 0
+        while True:
+            time.sleep(0.005)
+            yield Frame(i, f"f{i}", np.zeros((8, 8), np.uint16), 10, time.monotonic_ns())
+            i += 1
+
+    pipeline = Recording()
+    svc = Daemon(cfg, source_factory=lambda: FakeSource(frames()), pipeline=pipeline,
+                 link=DaemonLink(cfg), notifier=Notifier(""))
+    runner = threading.Thread(target=svc.run)
+    runner.start()
+    fc_enc = Encoder(Direction.TC)
+    decoder = StreamDecoder(Direction.TM)
+    try:
+        got = read_packets(master, decoder, lambda ps: sum(p.id == MsgId.STATUS
+                                                          for p in ps) >= 2)
+        before = [p.values for p in got if p.id == MsgId.ATTITUDE][-1]
+        assert before["flags"] == AttitudeFlag.VALID and before["t_ns"] < 10**18
+        status = [p.values for p in got if p.id == MsgId.STATUS][-1]
+        assert (status["time_source"], status["corrections"]) == (TimeSource.NONE, 0)
+
+        tai_now = 1_805_000_000 * 10**9                   # 2027-03-14, TAI
+        os.write(master, fc_enc.encode(MsgId.TIME_SYNC, fc_time_ns=tai_now))
+        synced_at = time.monotonic_ns()
+        os.write(master, fc_enc.encode(MsgId.SET_VELOCITY, t_ns=tai_now, vx_km_s=-7.5,
+                                       vy_km_s=0.25, vz_km_s=1.0))
+        replies = read_packets(master, decoder,
+                               lambda ps: sum(p.id == MsgId.ACK for p in ps) >= 2)
+        n = len(replies)
+        got = replies + read_packets(
+            master, decoder, lambda ps: sum(p.id == MsgId.STATUS for p in ps) >= 2
+            and sum(p.id == MsgId.ATTITUDE for p in ps) >= 5)
+        att = [p.values for p in got[n:] if p.id == MsgId.ATTITUDE][-1]
+        both = (AttitudeFlag.VALID | AttitudeFlag.TIME_SYNCED | AttitudeFlag.ANNUAL_ABERRATION
+                | AttitudeFlag.OBSERVER_VELOCITY)
+        assert att["flags"] == both
+        # TAI of a frame exposed after the sync: the sync's time plus the time since, to
+        # within the read latency and the 20-byte packet's 0.2 ms on the wire
+        assert 0 < att["t_ns"] - tai_now < time.monotonic_ns() - synced_at + 10**8
+        status = [p.values for p in got[n:] if p.id == MsgId.STATUS][-1]
+        assert status["time_source"] == TimeSource.TIME_SYNC
+        assert status["corrections"] == Correction.ANNUAL_ABERRATION | \
+            Correction.OBSERVER_VELOCITY
+        t_ns, observer = pipeline.observers[-1]
+        assert observer.velocity_km_s == (-7.5, 0.25, 1.0)
+        assert 0 < observer.t_tai_ns - t_ns - (tai_now - synced_at) < 10**8
     finally:
         svc.request_stop()
         runner.join(timeout=10)

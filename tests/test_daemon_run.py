@@ -64,7 +64,7 @@ from tracker.commands.run import build_daemon
 from tracker.config import Config
 
 class Stall:
-    def process(self, image, bit_depth, t_ns):
+    def process(self, image, bit_depth, t_ns, observer):
         time.sleep(120)
 
 cfg = Config()

@@ -24,7 +24,8 @@ from tracker.protocol.nullmodem import NullModem
 STATUS = {
     "uptime_s": 7, "frame_rate_hz": 29.5, "exposure_us": 20000, "gain": 2.0,
     "cpu_temp_c": 51.5, "mode": Mode.TRACKING, "frames": 210, "capture_faults": 1,
-    "solve_failures": 2, "last_error": 0, "config_crc": 0xDEADBEEF,
+    "solve_failures": 2, "last_error": 0, "config_crc": 0xDEADBEEF, "time_source": 2,
+    "corrections": 1,
 }
 
 
@@ -48,6 +49,10 @@ class RecordingHandler:
 
     def time_sync(self, offset_ns):
         self.calls.append(("time_sync", offset_ns))
+        return Reason.OK
+
+    def set_velocity(self, t_tai_ns, velocity_km_s):
+        self.calls.append(("set_velocity", (t_tai_ns, velocity_km_s)))
         return Reason.OK
 
     def status(self):
@@ -152,6 +157,8 @@ def _commands():
         (tc.encode(MsgId.SET_GAIN, gain=4.0), MsgId.NACK, Reason.REJECTED),
         (tc.encode(MsgId.SET_OUTPUT, msg_id=MsgId.STATUS, rate_hz=0.0), MsgId.ACK, Reason.OK),
         (tc.encode(MsgId.TIME_SYNC, fc_time_ns=5 * 10**18), MsgId.ACK, Reason.OK),
+        (tc.encode(MsgId.SET_VELOCITY, t_ns=1_800_000_000 * 10**9, vx_km_s=-7.5, vy_km_s=0.25,
+                   vz_km_s=1.0), MsgId.ACK, Reason.OK),
         (tc.encode(MsgId.REQUEST_STATUS), MsgId.ACK, Reason.OK),
     ]
 
@@ -176,7 +183,8 @@ def test_every_command_gets_the_right_ack_or_nack_and_bad_ones_change_nothing(pt
     assert replies[-1].values["rx_rejects"] == 7
     # Only the valid commands reached the service, in order.
     names = [c[0] for c in handler.calls]
-    assert names == ["set_mode", "set_exposure", "set_gain", "time_sync"]
+    assert names == ["set_mode", "set_exposure", "set_gain", "time_sync", "set_velocity"]
+    assert handler.calls[4][1] == (1_800_000_000 * 10**9, (-7.5, 0.25, 1.0))
     assert handler.calls[0][1] == Mode.TRACKING and handler.calls[1][1] == 15000
     # FC clock minus tracker clock: 5e18 minus a monotonic time that is << 1e18.
     assert 4 * 10**18 < handler.calls[3][1] < 5 * 10**18

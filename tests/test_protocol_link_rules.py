@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from tracker.astrometry.timescale import TAI_NS_MAX, TAI_NS_MIN
 from tracker.config import LinkConfig
 from tracker.protocol.decoder import StreamDecoder
 from tracker.protocol.encoder import Encoder
@@ -18,7 +19,8 @@ from tracker.protocol.messages import BY_ID, AttitudeFlag, Direction, Mode, MsgI
 STATUS = {
     "uptime_s": 7, "frame_rate_hz": 29.5, "exposure_us": 20000, "gain": 2.0,
     "cpu_temp_c": 51.5, "mode": Mode.TRACKING, "frames": 210, "capture_faults": 1,
-    "solve_failures": 2, "last_error": 0, "config_crc": 0xDEADBEEF,
+    "solve_failures": 2, "last_error": 0, "config_crc": 0xDEADBEEF, "time_source": 1,
+    "corrections": 3,
 }
 
 
@@ -47,6 +49,9 @@ class Handler:
 
     def time_sync(self, offset_ns):
         return self._call("time_sync", offset_ns)
+
+    def set_velocity(self, t_tai_ns, velocity_km_s):
+        return self._call("set_velocity", (t_tai_ns, velocity_km_s))
 
     def status(self):
         return self._status
@@ -147,24 +152,34 @@ def test_a_link_thread_that_ends_is_reported_as_the_link_failure(pty):
     link.close()
 
 
-def test_time_sync_beyond_2_63_is_nacked_and_times_saturate(pty):
-    """Item 4: no TIME_SYNC or frame time can push t_ns out of u64."""
+def test_time_sync_outside_1972_2200_tai_is_nacked_and_times_saturate(pty):
+    """Item 4 (issue 14: TAI, 1972-2200): no TIME_SYNC or frame time can push t_ns out of u64;
+    a SET_VELOCITY's time obeys the same range."""
     master, path = pty
     tc = Encoder(Direction.TC)
     handler = Handler()
     with Link(_cfg(path, queue_attitude=8), handler) as link:
         _open(link)
-        os.write(master, tc.encode(MsgId.TIME_SYNC, fc_time_ns=2**64 - 1))
-        os.write(master, tc.encode(MsgId.TIME_SYNC, fc_time_ns=2**63))
-        os.write(master, tc.encode(MsgId.TIME_SYNC, fc_time_ns=2**63 - 1))
+        for t in (2**64 - 1, 2**63, TAI_NS_MAX + 1, TAI_NS_MIN - 1, 0, TAI_NS_MAX, TAI_NS_MIN):
+            os.write(master, tc.encode(MsgId.TIME_SYNC, fc_time_ns=t))
+        os.write(master, tc.encode(MsgId.SET_VELOCITY, t_ns=TAI_NS_MIN - 1, vx_km_s=1.0,
+                                   vy_km_s=2.0, vz_km_s=3.0))
+        os.write(master, tc.encode(MsgId.SET_VELOCITY, t_ns=TAI_NS_MIN, vx_km_s=1.0,
+                                   vy_km_s=2.0, vz_km_s=-200.0))
+        os.write(master, tc.encode(MsgId.SET_VELOCITY, t_ns=TAI_NS_MIN, vx_km_s=1.0,
+                                   vy_km_s=math.nan, vz_km_s=0.0))
+        os.write(master, tc.encode(MsgId.SET_VELOCITY, t_ns=TAI_NS_MIN, vx_km_s=200.5,
+                                   vy_km_s=0.0, vz_km_s=0.0))
         for k, t_ns in enumerate((-1, -(2**70), 2**64, 2**80, 12345)):
             link.gate.set_rate(MsgId.ATTITUDE, 100.0)          # due at once
             link.send_attitude(frame_id=k, t_ns=t_ns, q=None, sigma_cross_arcsec=math.nan,
                                sigma_roll_arcsec=math.nan, matched=70000, mode=Mode.TRACKING)
-        got = _collect(master, lambda ps: len(ps) >= 8)
+        got = _collect(master, lambda ps: len(ps) >= 16)
     codes = [Reason(r.values["code"]) for r in _replies(got)]
-    assert codes == [Reason.OUT_OF_RANGE, Reason.OUT_OF_RANGE, Reason.OK]
-    assert [c[0] for c in handler.calls] == ["time_sync"]
+    bad, ok = Reason.OUT_OF_RANGE, Reason.OK
+    assert codes == [bad, bad, bad, bad, bad, ok, ok, bad, ok, bad, bad]
+    assert [c[0] for c in handler.calls] == ["time_sync", "time_sync", "set_velocity"]
+    assert handler.calls[2][1] == (TAI_NS_MIN, (1.0, 2.0, -200.0))
     att = [p.values for p in got if p.id == MsgId.ATTITUDE]
     assert [a["t_ns"] for a in att] == [0, 0, 2**64 - 1, 2**64 - 1, 12345]
     assert {a["matched"] for a in att} == {0xFFFF}
@@ -238,6 +253,11 @@ def test_only_advertised_attitude_flags_are_ever_sent(pty):
                                flags=0xFFFF, rate_dps=rate)
         got = _collect(master, lambda ps: len(ps) >= 3)
     flags = [p.values["flags"] for p in got]
-    assert flags == [AttitudeFlag.TIME_SYNCED, AttitudeFlag.TIME_SYNCED | AttitudeFlag.VALID,
-                     AttitudeFlag.TIME_SYNCED | AttitudeFlag.VALID | AttitudeFlag.RATE_VALID]
-    assert {f.name for f in AttitudeFlag} == {"VALID", "RATE_VALID", "TIME_SYNCED"}
+    corrected = AttitudeFlag.ANNUAL_ABERRATION | AttitudeFlag.OBSERVER_VELOCITY
+    # the aberration flags only with VALID: an attitude not solved was not corrected
+    assert flags == [AttitudeFlag.TIME_SYNCED,
+                     AttitudeFlag.TIME_SYNCED | AttitudeFlag.VALID | corrected,
+                     AttitudeFlag.TIME_SYNCED | AttitudeFlag.VALID | AttitudeFlag.RATE_VALID
+                     | corrected]
+    assert {f.name for f in AttitudeFlag} == {"VALID", "RATE_VALID", "TIME_SYNCED",
+                                              "ANNUAL_ABERRATION", "OBSERVER_VELOCITY"}

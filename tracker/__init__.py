@@ -23,6 +23,11 @@ Each frame flows one way::
 * :mod:`tracker.daemon` is what ``tracker run`` and systemd run: the frame
   loop, its modes, the daemon's side of the link (FC commands in as values,
   STATUS out as a snapshot), exposure control, health and sd_notify.
+* :mod:`tracker.astrometry` holds time (TAI on the wire, UTC at the edges),
+  the Earth's velocity and aberration; each frame's
+  :class:`~tracker.astrometry.observer.Observer` (its absolute time and the
+  observer's velocity) goes with it to the solver, which then reports the
+  ICRS attitude.
 * :mod:`tracker.sim` renders synthetic frames with truth;
   :mod:`tracker.catalogue` loads the bundled Hipparcos stars;
   :mod:`tracker.camera` maps pixels to directions.

@@ -39,6 +39,15 @@ an image of another size than the camera, a missing catalogue) raise
 :class:`tracker.errors.UserError` with a one-line message; an image without
 a solution is not an error: ``ok`` is False and ``reason`` says why.
 
+Aberration: the attitude is the ICRS one (as an observer at rest at the
+solar system's barycentre would report it) when the call says when the
+image was taken, ``utc="2026-03-20T21:04:05.5Z"`` (the exposure mid-point,
+ISO 8601 UTC), and for a camera in orbit its velocity relative to the
+Earth's centre, ``observer_velocity_km_s=(vx, vy, vz)`` (ICRS axes). The
+time also sets the catalogue's proper-motion epoch. Without ``utc`` the
+attitude is the apparent one, up to 25 arcsec away; ``corrections`` in the
+result says which were applied.
+
 Calls are serialised by a lock, and the configurations of the last two calls
 keep their loaded catalogue, database and detector (the first call with a
 configuration takes about a second to load them).
@@ -56,6 +65,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tracker.astrometry.observer import Observer, TimeSource
+from tracker.astrometry.timescale import TimeError, tai_ns_from_utc_iso
 from tracker.capture.imagefile import read_image
 from tracker.config import Config, check_config, config_from_dict, load_config
 from tracker.errors import UserError
@@ -84,6 +95,8 @@ class SolveResult:
     ``stars`` has :data:`RESULT_STAR_DTYPE` rows, brightest first for
     images. ``prob_false`` is the chance that the match is wrong.
     ``time_ms`` is the processing time (decoding a file excluded).
+    ``corrections`` names the aberration corrections applied
+    (``annual_aberration``, ``observer_velocity``; empty without ``utc``).
     """
 
     ok: bool
@@ -100,6 +113,7 @@ class SolveResult:
     width: int = 0
     height: int = 0
     time_ms: float = 0.0
+    corrections: tuple[str, ...] = ()
 
     def __repr__(self) -> str:
         if not self.ok:
@@ -136,8 +150,21 @@ def _pipeline(cfg: Config) -> Pipeline:
     return pipeline
 
 
+def _observer(utc, observer_velocity_km_s) -> Observer:
+    """The observer context of a call's ``utc`` and velocity; UserError if unusable."""
+    if utc is None:
+        if observer_velocity_km_s is not None:
+            raise UserError("observer_velocity_km_s needs utc: without the time the Earth's "
+                            "own 30 km/s cannot be corrected, so neither is the observer's")
+        return Observer()
+    try:
+        return Observer(tai_ns_from_utc_iso(utc), observer_velocity_km_s, TimeSource.RECORD)
+    except (TimeError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+
+
 def _result(stars: np.ndarray, solution, reason: str | None, width: int, height: int,
-            time_ms: float) -> SolveResult:
+            time_ms: float, observer: Observer) -> SolveResult:
     rows = np.zeros(len(stars), RESULT_STAR_DTYPE)
     rows["flux"] = rows["snr"] = math.nan
     for name in ("x", "y", "flux", "snr", "flags"):
@@ -146,6 +173,8 @@ def _result(stars: np.ndarray, solution, reason: str | None, width: int, height:
     if solution is not None:
         rows["hip"] = solution.hip
     common = {"stars": rows, "width": width, "height": height, "time_ms": time_ms}
+    if solution is not None and solution.ok:
+        common["corrections"] = tuple(observer.to_json()["corrections"])
     if solution is None or not solution.ok:
         return SolveResult(ok=False, reason=solution.reason if solution is not None else reason,
                            **common)
@@ -157,15 +186,19 @@ def _result(stars: np.ndarray, solution, reason: str | None, width: int, height:
                        prob_false=float(solution.prob_false), **common)
 
 
-def solve(image, config=None) -> SolveResult:
+def solve(image, config=None, *, utc: str | None = None,
+          observer_velocity_km_s=None) -> SolveResult:
     """Detect the stars of one image and solve its attitude lost in space.
 
     ``image``: a file path or an array (see the module docstring);
-    ``config``: a YAML path, a Config, a mapping or None (the defaults).
-    Raises :class:`~tracker.errors.UserError` for an unreadable file, a bad
-    configuration, or an image whose size is not the camera's.
+    ``config``: a YAML path, a Config, a mapping or None (the defaults);
+    ``utc`` and ``observer_velocity_km_s``: when and how fast (module
+    docstring). Raises :class:`~tracker.errors.UserError` for an unreadable
+    file, a bad configuration or time, or an image whose size is not the
+    camera's.
     """
     cfg = _config(config)
+    observer = _observer(utc, observer_velocity_km_s)
     cam = cfg.camera
     where = ""
     if isinstance(image, (str, os.PathLike)):
@@ -179,10 +212,10 @@ def solve(image, config=None) -> SolveResult:
                         f"{cam.width}x{cam.height}: give the configuration of the camera that "
                         "took it (camera.width, height, pixel_size_um, focal_length_mm)")
     with _lock:
-        result = _pipeline(cfg).process(frame, bit_depth, 0)
+        result = _pipeline(cfg).process(frame, bit_depth, 0, observer)
         stars = result.detections.stars.copy()
     return _result(stars, result.solution, result.solve_reason or result.detections.reason,
-                   width, height, result.time_ms)
+                   width, height, result.time_ms, observer)
 
 
 def _centroid_rows(centroids) -> np.ndarray:
@@ -213,21 +246,25 @@ def _centroid_rows(centroids) -> np.ndarray:
     return rows
 
 
-def solve_centroids(centroids, config=None) -> SolveResult:
+def solve_centroids(centroids, config=None, *, utc: str | None = None,
+                    observer_velocity_km_s=None) -> SolveResult:
     """Solve the attitude from star centroids (pixels of the configured camera).
 
     ``centroids``: an (n, 2) array-like of x, y, brightest first; (n, 3) of
     x, y, flux (any order: sorted by flux); or a record array with fields
-    ``x``, ``y`` and optionally ``flux``. ``config`` as for :func:`solve`.
-    The result's ``stars`` are the centroids, brightest first (flux and snr
-    NaN where not given).
+    ``x``, ``y`` and optionally ``flux``. ``config``, ``utc`` and
+    ``observer_velocity_km_s`` as for :func:`solve`. The result's ``stars``
+    are the centroids, brightest first (flux and snr NaN where not given).
     """
     cfg = _config(config)
+    observer = _observer(utc, observer_velocity_km_s)
     rows = _centroid_rows(centroids)
     with _lock:
         pipeline = _pipeline(cfg)
         if not cfg.identify.enabled:
-            return _result(rows, None, "disabled", cfg.camera.width, cfg.camera.height, 0.0)
-        solution = pipeline.solver.solve(rows, 0)
+            return _result(rows, None, "disabled", cfg.camera.width, cfg.camera.height, 0.0,
+                           observer)
+        solution = pipeline.solve_stars(rows, 0, observer)
     time_ms = sum(solution.stages_ms.values())
-    return _result(rows, solution, None, cfg.camera.width, cfg.camera.height, time_ms)
+    return _result(rows, solution, None, cfg.camera.width, cfg.camera.height, time_ms,
+                   observer)

@@ -19,8 +19,10 @@ where r0 is the unit vector at J1991.25 and mu0 = pmRA* p + pmDE q the
 proper-motion vector (p, q: unit vectors toward +RA and +Dec). The parallax
 then cancels out of the direction (it enters only through the radial
 proper motion, which is zero here), so it is not needed for positions.
-Positions stay barycentric: annual parallax (< 0.77 arcsec) and
-aberration (~20 arcsec) depend on the observer and are not applied here.
+Positions stay barycentric: annual parallax (< 0.77 arcsec, not applied)
+and aberration (~20 arcsec: the solver applies it for each frame's observer,
+tracker.astrometry) depend on the observer. The epoch follows the frames'
+absolute time when they have one (tracker.pipeline).
 
 Angles are radians; epochs are decimal Julian years (J2000.0 = 2000.0 =
 JD 2451545.0 TT; the system clock's UTC is used for "now", a difference of

@@ -84,8 +84,13 @@ class CatalogueConfig:
     path: str | None = knob(None, "catalogue file (with <file>.sha256 beside it); "
                             "null = the bundled catalogue/stars.npz")
     epoch_year: float | None = knob(
-        None, "observation epoch for proper motion, decimal Julian year; null = now", "yr",
-        min=1900.0, max=2200.0)
+        None, "observation epoch for proper motion when frames carry no absolute time, "
+        "decimal Julian year; null = now (system clock); a frame's absolute time (TIME_SYNC, "
+        "a replay's utc) sets the epoch instead", "yr", min=1900.0, max=2200.0)
+    epoch_step_years: float = knob(
+        0.01, "re-propagate the catalogue when a frame's absolute time is further than this "
+        "from its epoch (the fastest star, 8.67 arcsec/yr, is then off by at most 0.09 "
+        "arcsec; the next frame is solved lost in space)", "yr", min=0.0001, max=100.0)
     mag_limit: float | None = knob(None, "faintest Hipparcos Hp magnitude used; null = what "
                                    "the camera's field needs; at most the file's own limit "
                                    "(9.0 for the bundled file)", "mag", min=-2.0, max=12.5)
@@ -409,6 +414,22 @@ class ServiceConfig:
 
 
 @dataclass(frozen=True)
+class TimeConfig:
+    """Absolute time and the observer's velocity (tracker.daemon.timebase)."""
+
+    system_clock: str = knob(
+        "never", "use the tracker's own clock (UTC, leap seconds from the table) as "
+        "absolute time until the flight computer's TIME_SYNC: never; synchronised (while "
+        "the kernel says NTP or PTP keeps it within 16 s: adjtimex, as timedatectl); always "
+        "(a clock set by other means, e.g. a battery-backed RTC); tracker record writes utc "
+        "under the same rule", choices=("never", "synchronised", "always"))
+    velocity_max_age_s: float = knob(
+        10.0, "a SET_VELOCITY further than this from a frame's time is stale and not "
+        "applied (in low Earth orbit the velocity turns 0.066 deg/s: 0.006 arcsec of "
+        "aberration error per second of age)", "s", min=0.001, max=86400.0)
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole configuration; one attribute per section."""
 
@@ -420,6 +441,7 @@ class Config:
     link: LinkConfig = LinkConfig()
     capture: CaptureConfig = CaptureConfig()
     service: ServiceConfig = ServiceConfig()
+    time: TimeConfig = TimeConfig()
 
 
 # --------------------------------------------------------------------------

@@ -9,16 +9,28 @@ pattern database) keeps its tracking state between frames. Colour frames are
 converted to grey as replay converts them (tracker.frame_array).
 Identification runs only on frames whose size matches the configured camera,
 since the camera model is what maps pixels to directions.
+
+Each frame may come with its :class:`~tracker.astrometry.observer.Observer`
+(absolute time, the observer's velocity), which the solver uses to correct
+aberration. Its time also sets the proper-motion epoch: when it is further
+than ``catalogue.epoch_step_years`` from the loaded catalogue's epoch, the
+catalogue is propagated to it anew and the solver rebuilt (its tracking
+state is lost: that frame is solved lost in space). Without an absolute
+time the catalogue stays at ``catalogue.epoch_year`` (null: the time it was
+loaded).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 
+from tracker.astrometry.observer import Observer
 from tracker.camera import CameraModel
 from tracker.catalogue import Catalogue
 from tracker.config import Config
@@ -27,6 +39,8 @@ from tracker.frame_array import to_grey
 from tracker.identify import Solution, Solver, make_solver
 
 __all__ = ["Pipeline", "FrameResult", "DETECTORS_KEPT"]
+
+log = logging.getLogger(__name__)
 
 # Detectors kept for frame sizes seen lately: the camera's and one other.
 DETECTORS_KEPT = 2
@@ -38,6 +52,8 @@ class FrameResult:
 
     ``solution`` is None when identification is off or was not attempted;
     ``solve_reason`` then says why (``"disabled"``, ``"frame_size"``).
+    ``observer`` is the context the frame was processed with (what the
+    solver corrected: ``observer.corrections``).
     """
 
     detections: Detections
@@ -45,6 +61,7 @@ class FrameResult:
     time_ms: float
     stages_ms: dict
     solve_reason: str | None = None
+    observer: Observer = Observer()
 
 
 class Pipeline:
@@ -91,13 +108,41 @@ class Pipeline:
         if self._solver is not None:
             self._solver.reset(lens=lens)
 
-    def process(self, image: np.ndarray, bit_depth: int, t_ns: int) -> FrameResult:
+    def solve_stars(self, stars, t_ns: int, observer: Observer | None = None) -> Solution:
+        """Identify stars and solve the attitude, the catalogue at the observer's epoch.
+
+        ``stars``: STAR_DTYPE rows (x, y, flux) in the camera's pixels;
+        ``t_ns`` and ``observer`` as in :meth:`process`.
+        """
+        observer = observer or Observer()
+        self._follow_epoch(observer)
+        return self.solver.solve(stars, t_ns, observer)
+
+    def _follow_epoch(self, observer: Observer) -> None:
+        """Propagate the catalogue to the observer's epoch if it moved too far (module doc)."""
+        epoch = observer.epoch_year
+        loaded = self._catalogue
+        if epoch is None or (loaded is not None and abs(epoch - loaded.epoch_year)
+                             <= self.cfg.catalogue.epoch_step_years):
+            return
+        if loaded is not None:
+            log.info("catalogue propagated from epoch %.4f to %.4f, the frames' time "
+                     "(tracking starts again)", loaded.epoch_year, epoch)
+        self._catalogue = Catalogue.from_config(dataclasses.replace(self.cfg.catalogue,
+                                                                    epoch_year=epoch))
+        self._solver = None
+
+    def process(self, image: np.ndarray, bit_depth: int, t_ns: int,
+                observer: Observer | None = None) -> FrameResult:
         """Detect, identify and solve one frame; never raises on bad pixels.
 
         ``image`` is 2-D (or colour: rows x cols x 3 or 4, BGR(A), made grey
         first), uint8 or uint16 holding ``bit_depth``-bit values; ``t_ns`` the
-        exposure mid-point (monotonic clock), used by tracking.
+        exposure mid-point (monotonic clock), used by tracking; ``observer``
+        the frame's absolute time and velocity (None: unknown, no aberration
+        corrected).
         """
+        observer = observer or Observer()
         t0 = time.perf_counter_ns()
         if isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] in (1, 3, 4):
             image = to_grey(image)
@@ -110,7 +155,7 @@ class Pipeline:
         elif tuple(shape) != (self.camera.height, self.camera.width):
             reason = "frame_size"
         else:
-            solution = self.solver.solve(detections.stars, t_ns)
+            solution = self.solve_stars(detections.stars, t_ns, observer)
             stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})
         elapsed = (time.perf_counter_ns() - t0) / 1e6
-        return FrameResult(detections, solution, elapsed, stages, reason)
+        return FrameResult(detections, solution, elapsed, stages, reason, observer)

@@ -38,7 +38,7 @@ STATUS_VALUES = {
     "uptime_s": 100, "frame_rate_hz": 30.0, "exposure_us": 20000, "gain": 2.0,
     "cpu_temp_c": 55.0, "mode": Mode.TRACKING, "frames": 3000, "capture_faults": 0,
     "solve_failures": 1, "link_drops": 0, "link_reopens": 0, "rx_rejects": 0, "last_error": 0,
-    "config_crc": 0x12345678,
+    "config_crc": 0x12345678, "time_source": 1, "corrections": 3,
 }
 
 
@@ -115,7 +115,10 @@ def _fuzz(rng: np.random.Generator, n: int) -> dict:
     pool = [sample_attitude(tm, 1), *tm.centroids(1, 1, stars),
             tm.encode(MsgId.STATUS, **STATUS_VALUES),
             tc.encode(MsgId.PING), tc.encode(MsgId.SET_MODE, mode=2),
-            tc.encode(MsgId.SET_GAIN, gain=2.0), tc.encode(MsgId.TIME_SYNC, fc_time_ns=5)]
+            tc.encode(MsgId.SET_GAIN, gain=2.0),
+            tc.encode(MsgId.TIME_SYNC, fc_time_ns=1_800_000_037 * 10**9),
+            tc.encode(MsgId.SET_VELOCITY, t_ns=1_800_000_037 * 10**9, vx_km_s=-7.5,
+                      vy_km_s=0.5, vz_km_s=1.25)]
     decoders = [StreamDecoder(Direction.TM), StreamDecoder(Direction.TC, keep_rejects=True)]
     crashes, first_error, packets, biggest = 0, None, 0, 0
     t0 = time.perf_counter()

@@ -137,11 +137,11 @@ class _FlakyPipeline:
     def reset(self):
         self.inner.reset()
 
-    def process(self, image, bit_depth, t_ns):
+    def process(self, image, bit_depth, t_ns, observer=None):
         if self.inj.due(self.inj.args.stage_every):
             self.inj.n["stage_raise"] += 1
             raise RuntimeError("injected: stage failure")
-        return self.inner.process(image, bit_depth, t_ns)
+        return self.inner.process(image, bit_depth, t_ns, observer)
 
 
 class _FlightComputer(threading.Thread):

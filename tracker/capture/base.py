@@ -17,6 +17,8 @@ from typing import Protocol
 
 import numpy as np
 
+from tracker.astrometry.observer import Observer, TimeSource
+
 __all__ = ["Frame", "FrameError", "FrameSource", "Waiting"]
 
 
@@ -26,8 +28,16 @@ class Frame:
 
     ``image`` is 2-D, uint8 (8-bit) or uint16 holding ``bit_depth``-bit
     values. ``t_ns`` is the exposure mid-point on the monotonic clock (for
-    replay: when the frame was read). Live backends may hand out a view of a
-    reused buffer, valid until the next frame is requested.
+    replay: the record's ``t_ns``, else when the frame was read). Live
+    backends may hand out a view of a reused buffer, valid until the next
+    frame is requested.
+
+    ``t_tai_ns`` is the exposure mid-point as an absolute time (TAI ns since
+    1970, tracker.astrometry.timescale) when the frame's own record gives
+    one (a replay's ``utc``), and ``observer_velocity_km_s`` the observer's
+    velocity relative to the Earth's centre (ICRS axes, km/s) at that time;
+    None when unknown. Live frames carry neither: the daemon supplies them
+    from TIME_SYNC and SET_VELOCITY (tracker.daemon.timebase).
     """
 
     index: int
@@ -38,6 +48,14 @@ class Frame:
     exposure_us: float | None = None
     gain: float | None = None
     meta: dict = field(default_factory=dict)
+    t_tai_ns: int | None = None
+    observer_velocity_km_s: tuple[float, float, float] | None = None
+
+    def recorded_observer(self) -> Observer:
+        """The observer context the frame's own record gives (empty without ``t_tai_ns``)."""
+        if self.t_tai_ns is None:
+            return Observer()
+        return Observer(self.t_tai_ns, self.observer_velocity_km_s, TimeSource.RECORD)
 
 
 @dataclass

@@ -12,9 +12,17 @@ frames, so the daemon's watchdog stays fed). A file that cannot be read becomes 
 
 Metadata: a folder may hold ``frames.jsonl`` (written by ``tracker record``
 and ``tracker simulate``), one JSON object per frame with ``file`` and any of
-``t_ns`` (exposure mid-point), ``exposure_us`` and ``gain``. Replayed frames
-carry those values, so tracking sees the recorded time base rather than the
-replay's; without it ``t_ns`` is the time the file was read.
+``t_ns`` (exposure mid-point, monotonic), ``exposure_us``, ``gain``, ``utc``
+(the exposure mid-point as ISO 8601 UTC ending in ``Z``, e.g.
+``2026-11-23T17:29:15.25Z``; a leap second's ``23:59:60`` is accepted) and
+``observer_velocity_km_s`` ([x, y, z], the observer's velocity relative to
+the Earth's centre at that time, ICRS axes). Replayed frames carry those
+values, so tracking sees the recorded time base rather than the replay's
+(without ``t_ns`` it is the time the file was read), and the solver the
+recorded absolute time and velocity (tracker.astrometry.observer). A
+``utc`` or ``observer_velocity_km_s`` that cannot be used is a
+:class:`~tracker.errors.UserError` naming the file and line, before any
+frame is read: a silently ignored time would cost 20 arcsec.
 """
 
 from __future__ import annotations
@@ -24,10 +32,13 @@ import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
+from tracker.astrometry.observer import check_velocity
+from tracker.astrometry.timescale import TimeError, check_tai_ns, tai_ns_from_utc_iso
 from tracker.capture.base import Frame, FrameError, Waiting
 from tracker.capture.imagefile import IMAGE_SUFFIXES, ImageReadError, read_image
 from tracker.capture.input_paths import expand_inputs
 from tracker.capture.live import WAIT_SLICE_S
+from tracker.errors import UserError
 
 __all__ = ["ReplaySource", "expand_paths", "read_metadata", "METADATA_FILE"]
 
@@ -39,23 +50,42 @@ def expand_paths(paths: Sequence[str | Path]) -> list[Path]:
     return expand_inputs(paths, IMAGE_SUFFIXES)
 
 
+def _absolute_time(record: dict, where: str) -> dict:
+    """The record with ``utc`` as ``t_tai_ns`` and its velocity checked; UserError if unusable."""
+    out = dict(record)
+    try:
+        if record.get("utc") is not None:
+            out["t_tai_ns"] = check_tai_ns(tai_ns_from_utc_iso(record["utc"]))
+        if record.get("observer_velocity_km_s") is not None:
+            out["observer_velocity_km_s"] = check_velocity(record["observer_velocity_km_s"],
+                                                           "observer_velocity_km_s")
+    except (TimeError, ValueError) as exc:
+        raise UserError(f"{where}: {exc}") from None
+    return out
+
+
 def read_metadata(paths: Sequence[str | Path]) -> dict[Path, dict]:
     """Per-file metadata from the ``frames.jsonl`` of each folder named (see module doc).
 
-    Lines that are not JSON objects with a ``file`` key are skipped.
+    Lines that are not JSON objects with a ``file`` key are skipped; a line
+    whose ``utc`` or ``observer_velocity_km_s`` cannot be used raises
+    :class:`~tracker.errors.UserError`. ``utc`` is also given as
+    ``t_tai_ns`` (TAI ns since 1970).
     """
     meta: dict[Path, dict] = {}
     for folder in map(Path, paths):
         index = folder / METADATA_FILE
         if not (folder.is_dir() and index.is_file()):
             continue
-        for line in index.read_text(encoding="utf-8", errors="replace").splitlines():
+        lines = index.read_text(encoding="utf-8", errors="replace").splitlines()
+        for number, line in enumerate(lines, 1):
             try:
                 record = json.loads(line)
             except ValueError:
                 continue
             if isinstance(record, dict) and isinstance(record.get("file"), str):
-                meta[(folder / record["file"]).resolve()] = record
+                meta[(folder / record["file"]).resolve()] = _absolute_time(
+                    record, f"{index} line {number}")
     return meta
 
 
@@ -99,7 +129,9 @@ class ReplaySource:
         t_ns = meta.get("t_ns")
         return Frame(index, path.name, image, depth,
                      int(t_ns) if isinstance(t_ns, int) else time.monotonic_ns(),
-                     exposure_us=meta.get("exposure_us"), gain=meta.get("gain"))
+                     exposure_us=meta.get("exposure_us"), gain=meta.get("gain"),
+                     t_tai_ns=meta.get("t_tai_ns"),
+                     observer_velocity_km_s=meta.get("observer_velocity_km_s"))
 
     def __iter__(self) -> Iterator[Frame | FrameError | Waiting]:
         index = 0

@@ -2,7 +2,10 @@
 
 1. Simulates a slew over Orion (OV2311 + 16 mm lens, realistic sensor noise,
    hot pixels, cosmic rays; 0.5 deg/s at 10 fps) into ``OUT/frames`` with
-   truth files (kept and reused while the parameters are unchanged).
+   truth files (kept and reused while the parameters are unchanged), as seen
+   on 2026-03-20 from low Earth orbit (7.5 km/s): aberrated, with ``utc``
+   and the velocity in ``frames.jsonl``, so the service reports the ICRS
+   attitude.
 2. Joins two pseudo-terminals into a null-modem cable.
 3. Starts the service (``tracker run``) on the replay backend, writing to one
    end, and ``tracker monitor`` (the flight computer's tool) on the other,
@@ -35,7 +38,8 @@ __all__ = ["register", "run"]
 
 _MONITOR_STOP_S = 10.0
 _SCENE = ["--ra", "83.8", "--dec", "-5.4", "--roll", "20", "--rate-deg-s", "0", "0.5", "0",
-          "--fps", "10", "--seed", "1"]
+          "--fps", "10", "--seed", "1", "--utc", "2026-03-20T21:00:00Z",
+          "--observer-velocity-km-s", "-5.1", "4.2", "3.3"]
 
 
 def register(sub, common) -> None:
@@ -102,7 +106,11 @@ def _fc_packets(fc_log: Path) -> list[dict]:
 
 
 def _attitude_errors(packets: list[dict], folder: Path) -> list[tuple[float, float]]:
-    """(cross-boresight, roll) arcsec of each ATTITUDE the FC decoded against its truth."""
+    """(cross-boresight, roll) arcsec of each ATTITUDE the FC decoded against its truth.
+
+    The truth is the ICRS attitude; the tracker reports it when it corrected
+    aberration (ATTITUDE flag ANNUAL_ABERRATION).
+    """
     errors = []
     for packet in packets:
         if packet.get("name") != "ATTITUDE":
@@ -147,6 +155,8 @@ def run(args, cfg) -> int:
         name = packet.get("name", "?")
         decoded[name] = decoded.get(name, 0) + 1
     errors = _attitude_errors(packets, folder)
+    corrected = sum(1 for p in packets if p.get("name") == "ATTITUDE"
+                    and p["values"]["flags"] & AttitudeFlag.OBSERVER_VELOCITY)
     latency = result.get("latency_ms", {})
     link = result.get("link", {})
     sent = {k.removeprefix("sent_"): v for k, v in link.items() if k.startswith("sent_")}
@@ -160,7 +170,8 @@ def run(args, cfg) -> int:
     if errors:
         rms = np.sqrt(np.mean(np.square(errors), axis=0))
         print(f"  attitude vs truth    RMS cross-boresight {rms[0]:.2f} arcsec, roll "
-              f"{rms[1]:.1f} arcsec over {len(errors)} solutions")
+              f"{rms[1]:.1f} arcsec over {len(errors)} solutions (ICRS; aberration "
+              f"corrected in {corrected})")
     print(f"  faults               {json.dumps(result.get('faults', {}))}")
     ok = len(errors) >= 0.9 * args.frames
     print(f"demo: {'OK' if ok else 'FAILED: too few attitudes reached the FC'}")

@@ -20,6 +20,8 @@ import time
 import numpy as np
 import serial
 
+from tracker.astrometry.observer import Correction, TimeSource
+from tracker.astrometry.timescale import TimeError, tai_minus_utc_s, utc_iso_from_tai_ns
 from tracker.attitude import matrix_from_quat, radec_roll_from_matrix
 from tracker.commands.argtypes import count, non_negative, positive_count
 from tracker.commands.outputs import close_output, open_output
@@ -34,7 +36,8 @@ _MODES = {"standby": Mode.STANDBY, "lost-in-space": Mode.LOST_IN_SPACE,
 _OUTPUTS = {"attitude": MsgId.ATTITUDE, "centroids": MsgId.CENTROIDS, "status": MsgId.STATUS}
 _REOPEN_WAIT_S = 0.5
 _USAGE = ("ping | request-status | time-sync | set-mode standby|lost-in-space|tracking | "
-          "set-exposure US | set-gain X | set-output attitude|centroids|status HZ")
+          "set-exposure US | set-gain X | set-output attitude|centroids|status HZ | "
+          "set-velocity VX VY VZ")
 
 
 def register(sub, common) -> None:
@@ -57,7 +60,14 @@ def register(sub, common) -> None:
 
 # command -> its arguments' names, as the usage shows them
 _ARGUMENTS = {"ping": (), "request-status": (), "time-sync": (), "set-mode": ("MODE",),
-              "set-exposure": ("US",), "set-gain": ("X",), "set-output": ("MESSAGE", "HZ")}
+              "set-exposure": ("US",), "set-gain": ("X",), "set-output": ("MESSAGE", "HZ"),
+              "set-velocity": ("VX", "VY", "VZ")}
+
+
+def host_tai_ns() -> int:
+    """This computer's clock as TAI ns since 1970 (its UTC plus the leap seconds)."""
+    utc_ns = time.time_ns()
+    return utc_ns + tai_minus_utc_s(utc_ns / 1e9) * 1_000_000_000
 
 
 def split_port(port: str | None, sends: list[list[str]]) -> tuple[str, list[list[str]]]:
@@ -100,7 +110,12 @@ def build_command(encoder: Encoder, words: list[str]) -> bytes:
     elif name == "request-status":
         values = (MsgId.REQUEST_STATUS, {})
     elif name == "time-sync":
-        values = (MsgId.TIME_SYNC, {"fc_time_ns": time.time_ns()})
+        values = (MsgId.TIME_SYNC, {"fc_time_ns": host_tai_ns()})
+    elif name == "set-velocity":
+        v = [_number(words, a, float, "a velocity in km/s (ICRS axes, relative to the "
+                                      "Earth's centre)") for a in args]
+        values = (MsgId.SET_VELOCITY, {"t_ns": host_tai_ns(), "vx_km_s": v[0],
+                                       "vy_km_s": v[1], "vz_km_s": v[2]})
     elif name == "set-mode":
         mode = _MODES.get(args[0].lower())
         if mode is None:
@@ -136,7 +151,14 @@ def describe(p: Packet) -> str:
     v = p.values
     head = f"{p.name:<10}seq {p.seq:5d}"
     if p.id == MsgId.ATTITUDE:
-        text = f"{head}  frame {v['frame_id']}  t {v['t_ns'] / 1e9:.6f} s"
+        if v["flags"] & AttitudeFlag.TIME_SYNCED:
+            try:
+                when = utc_iso_from_tai_ns(v["t_ns"])[:-7] + "Z"       # to the microsecond
+            except TimeError:
+                when = f"{v['t_ns']} ns TAI"
+        else:
+            when = f"{v['t_ns'] / 1e9:.6f} s"
+        text = f"{head}  frame {v['frame_id']}  t {when}"
         if v["flags"] & AttitudeFlag.VALID:
             ra, dec, roll = radec_roll_from_matrix(matrix_from_quat(
                 [v["q_w"], v["q_x"], v["q_y"], v["q_z"]]))
@@ -161,7 +183,8 @@ def describe(p: Packet) -> str:
                 f"{v['capture_faults']}  solve failures {v['solve_failures']}  link drops "
                 f"{v['link_drops']}  reopens {v['link_reopens']}  rx rejects "
                 f"{v['rx_rejects']}  last error {v['last_error']}  config "
-                f"0x{v['config_crc']:08x}")
+                f"0x{v['config_crc']:08x}  time {_name(TimeSource, v['time_source'])}  "
+                f"corrections {Correction(v['corrections'] & 7).name or '-'}")
     return (f"{head}  {_name(MsgId, v['cmd_id'])} seq {v['cmd_seq']}  "
             f"{_name(Reason, v['code'])}")
 

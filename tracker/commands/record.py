@@ -5,9 +5,18 @@ written as ``DIR/frame_NNNNNN.npy`` (default: exact, fast) or ``.png``
 (16-bit for 10-bit data, lossless, smaller, slower), which ``tracker replay
 DIR`` reads in name order. ``DIR/frames.jsonl`` gets one JSON object per
 frame: ``file``, ``index``, ``t_ns`` (exposure mid-point, monotonic),
-``wall_time`` (UTC, ISO 8601), ``exposure_us``, ``gain``, ``bit_depth``,
-``cpu_temp_c`` and the backend's ``meta`` (sensor timestamp...); a frame the
-source could not deliver gets ``{"index", "error"}``.
+``wall_time`` (when it was saved, UTC, ISO 8601), ``exposure_us``, ``gain``,
+``bit_depth``, ``cpu_temp_c`` and the backend's ``meta`` (sensor
+timestamp...); a frame the source could not deliver gets ``{"index",
+"error"}``.
+
+``utc``, the exposure mid-point as ISO 8601 UTC (what replay needs to
+correct aberration), is written only when it is known: from the camera's
+monotonic stamp and the Pi's own clock when ``time.system_clock`` trusts
+that clock (``always``, or ``synchronised`` while the kernel says NTP keeps
+it: tracker.system_clock), and for frames recorded from files (``--replay``)
+when their own record has one; the same goes for
+``observer_velocity_km_s``.
 
 Disk-space guard: before each frame the free space of DIR's file system is
 checked, and recording stops (exit status 1, after closing the files
@@ -30,6 +39,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from tracker.astrometry.observer import Observer
+from tracker.astrometry.timescale import utc_iso_from_tai_ns
 from tracker.board import cpu_temperature_c
 from tracker.capture.backends import make_source
 from tracker.capture.base import FrameError, Waiting
@@ -37,6 +48,7 @@ from tracker.capture.live import CameraError
 from tracker.commands.argtypes import count, non_negative, positive_count
 from tracker.commands.outputs import output_folder
 from tracker.config import Config
+from tracker.daemon.timebase import TimeBase
 from tracker.errors import UserError
 
 __all__ = ["register", "run", "DiskGuard"]
@@ -83,12 +95,23 @@ def _save(path: Path, image: np.ndarray) -> None:
         raise
 
 
+def _absolute_time(observer: Observer) -> dict:
+    """A frame record's ``utc`` and ``observer_velocity_km_s``, where known (module doc)."""
+    out = {}
+    if observer.t_tai_ns is not None:
+        out["utc"] = utc_iso_from_tai_ns(observer.t_tai_ns)
+        if observer.velocity_km_s is not None:
+            out["observer_velocity_km_s"] = list(observer.velocity_km_s)
+    return out
+
+
 def run(args, cfg: Config) -> int:
     out = output_folder(args.out, "--out")
     guard = DiskGuard(out, int(args.min_free_mb * 2**20))
     if args.replay:
         cfg = dataclasses.replace(cfg, capture=dataclasses.replace(cfg.capture,
                                                                    backend="replay"))
+    timebase = TimeBase(cfg.time)
     stop = []
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     saved = seen = 0
@@ -121,7 +144,9 @@ def run(args, cfg: Config) -> int:
                               "wall_time": datetime.now(UTC).isoformat(timespec="milliseconds"),
                               "exposure_us": item.exposure_us, "gain": item.gain,
                               "bit_depth": item.bit_depth, "cpu_temp_c": cpu_temperature_c(),
-                              "source": item.name, "meta": item.meta}
+                              "source": item.name, "meta": item.meta,
+                              **_absolute_time(item.recorded_observer() if args.replay
+                                               else timebase.observer_for(item))}
                     meta.write(json.dumps(record) + "\n")
                 except OSError as exc:
                     (out / name).unlink(missing_ok=True)

@@ -83,6 +83,8 @@ def frame_record(name: str, result: FrameResult) -> dict:
         record["solve_reason"] = result.solve_reason
     if det.counters:
         record["rejected"] = {k: int(v) for k, v in det.counters.items()}
+    if result.observer.t_tai_ns is not None:
+        record["observer"] = result.observer.to_json()
     return record
 
 
@@ -197,7 +199,8 @@ def run(args, cfg) -> int:
                     if report is not None:
                         report.add_error(item.name, record["error"])
                 else:
-                    result = pipeline.process(item.image, item.bit_depth, item.t_ns)
+                    result = pipeline.process(item.image, item.bit_depth, item.t_ns,
+                                              item.recorded_observer())
                     record = frame_record(item.name, result)
                     if result.solve_reason == "frame_size" and not warned:
                         warned = True

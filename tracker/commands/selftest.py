@@ -24,6 +24,11 @@ name and what it found; the exit status is 1 if any check failed.
   and is readable and writable by this user.
 - ``data``: every ``*.npz`` under catalogue/ matches its ``.sha256`` file,
   and the configured catalogue loads.
+- ``clock``: the system clock's UTC and whether the kernel says NTP or PTP
+  keeps it synchronised (tracker.system_clock), against
+  ``time.system_clock``: warns when the configuration trusts a clock the
+  kernel calls unsynchronised, or trusts it ``always`` (on the Pi's own
+  word alone); absolute time then comes from TIME_SYNC only.
 - ``cpu_temp``: SoC temperature (warn at 75 C, fail at 85 C).
 - ``throttle``: ``vcgencmd get_throttled`` (under-voltage, throttling now or
   since boot).
@@ -36,16 +41,19 @@ import hashlib
 import os
 import shutil
 import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
 
+from tracker.astrometry.timescale import utc_iso_from_tai_ns
 from tracker.board import THROTTLE_BITS, cpu_temperature_c, throttled
 from tracker.capture.backends import make_source
 from tracker.capture.base import Frame, FrameError
 from tracker.capture.picamera2_source import compatibility_problem, installed_versions
 from tracker.catalogue import CatalogueError, default_catalogue_path, load_catalogue
 from tracker.config import Config
+from tracker.system_clock import kernel_synchronised, tai_minus_monotonic_ns
 
 __all__ = ["register", "run", "CHECKS", "raw_shift_advice"]
 
@@ -217,6 +225,21 @@ def check_data(cfg: Config, args) -> tuple[str, str]:
                     f"{len(cat)} stars")
 
 
+def check_clock(cfg: Config, args) -> tuple[str, str]:
+    policy = cfg.time.system_clock
+    synced = kernel_synchronised()
+    now = utc_iso_from_tai_ns(tai_minus_monotonic_ns() + time.monotonic_ns())[:19] + "Z"
+    state = {True: "synchronised (NTP/PTP, adjtimex)", False: "not synchronised (adjtimex)",
+             None: "synchronisation unknown (no adjtimex)"}[synced]
+    text = f"system clock {now}, {state}; time.system_clock: {policy}"
+    if policy == "never":
+        return "PASS", text + " (absolute time from TIME_SYNC only)"
+    if policy == "always" or not synced:
+        return "WARN", text + (" (trusted without the kernel's word)" if policy == "always"
+                               else " (not used until it is)")
+    return "PASS", text + " (used until TIME_SYNC)"
+
+
 def check_cpu_temp(cfg: Config, args) -> tuple[str, str]:
     temp = cpu_temperature_c()
     if temp is None:
@@ -241,7 +264,8 @@ def check_throttle(cfg: Config, args) -> tuple[str, str]:
 
 
 CHECKS = {"service": check_service, "picamera2": check_picamera2, "camera": check_camera,
-          "uart": check_uart, "data": check_data, "cpu_temp": check_cpu_temp,
+          "uart": check_uart, "data": check_data, "clock": check_clock,
+          "cpu_temp": check_cpu_temp,
           "throttle": check_throttle}
 
 

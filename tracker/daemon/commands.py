@@ -1,7 +1,7 @@
 """FC commands on their way to the frame loop, as values.
 
 The link's reader thread posts what the FC asked (SET_MODE, SET_EXPOSURE,
-SET_GAIN) into a :class:`CommandMailbox`; the frame loop takes everything
+SET_GAIN, TIME_SYNC, SET_VELOCITY) into a :class:`CommandMailbox`; the frame loop takes everything
 posted since its last look as one immutable :class:`Commands` value and
 applies it between frames. A later request of one kind replaces an earlier
 one, and a LOST_IN_SPACE anywhere in between is kept as ``reacquire``, so
@@ -27,6 +27,8 @@ class Commands:
     reacquire: bool = False        # forget the tracking lock (SET_MODE LOST_IN_SPACE)
     exposure_us: float | None = None
     gain: float | None = None
+    time_offset_ns: int | None = None      # TAI - monotonic clock (TIME_SYNC)
+    velocity: tuple[int, tuple[float, float, float]] | None = None   # (t TAI ns, km/s)
 
 
 class CommandMailbox:
@@ -37,7 +39,8 @@ class CommandMailbox:
         self._pending: Commands | None = None
 
     def post(self, *, mode: Mode | None = None, exposure_us: float | None = None,
-             gain: float | None = None) -> None:
+             gain: float | None = None, time_offset_ns: int | None = None,
+             velocity: tuple[int, tuple[float, float, float]] | None = None) -> None:
         """Record one command's request (the others keep their pending values)."""
         with self._lock:
             cur = self._pending or Commands()
@@ -48,6 +51,10 @@ class CommandMailbox:
                 cur = replace(cur, exposure_us=float(exposure_us))
             if gain is not None:
                 cur = replace(cur, gain=float(gain))
+            if time_offset_ns is not None:
+                cur = replace(cur, time_offset_ns=int(time_offset_ns))
+            if velocity is not None:
+                cur = replace(cur, velocity=velocity)
             self._pending = cur
 
     def take(self) -> Commands | None:

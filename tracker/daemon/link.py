@@ -9,12 +9,16 @@ daemon: commands go from the link's reader thread into a
 :class:`~tracker.daemon.status.StatusSnapshot` the loop published
 (:meth:`DaemonLink.publish`), complete from the start.
 
-- SET_MODE, SET_EXPOSURE, SET_GAIN: ACKed at once and posted for the loop,
-  which applies them before the next frame (exposure and gain clamped to the
-  configured limits).
-- TIME_SYNC: after it, ``t_ns`` in ATTITUDE and CENTROIDS is on the FC's
-  clock (offset added, saturated to the u64 range) and TIME_SYNCED is set.
-  A ``fc_time_ns`` above 2^63 - 1 is NACKed OUT_OF_RANGE by the decoder.
+- SET_MODE, SET_EXPOSURE, SET_GAIN, TIME_SYNC, SET_VELOCITY: ACKed at once
+  and posted for the loop, which applies them before the next frame
+  (exposure and gain clamped to the configured limits; the time and the
+  velocity go to its tracker.daemon.timebase.TimeBase). A ``fc_time_ns`` or
+  velocity time outside 1972-2200 (TAI) is NACKed OUT_OF_RANGE by the
+  decoder.
+- ATTITUDE and CENTROIDS carry the frame's absolute time (TAI ns) as
+  ``t_ns`` when its observer context has one (TIME_SYNCED set), else its
+  monotonic ``t_ns``; ATTITUDE's ANNUAL_ABERRATION and OBSERVER_VELOCITY
+  say what the solver corrected.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import math
 
 import numpy as np
 
+from tracker.astrometry.observer import Correction, Observer
 from tracker.capture.base import Frame
 from tracker.config import Config
 from tracker.daemon.commands import CommandMailbox, Commands
@@ -58,7 +63,6 @@ class DaemonLink:
         self.link = Link(cfg.link, self, open_port=open_port)
         self.mailbox = CommandMailbox()
         self._status = StatusSnapshot()
-        self._time_offset_ns: int | None = None
         self._stars = np.zeros(cfg.detect.max_stars, BY_ID[MsgId.CENTROIDS].item_dtype)
 
     # -- life cycle (called by the loop) ------------------------------------
@@ -93,7 +97,12 @@ class DaemonLink:
         return Reason.OK
 
     def time_sync(self, offset_ns: int) -> Reason:
-        self._time_offset_ns = int(offset_ns)
+        self.mailbox.post(time_offset_ns=offset_ns)
+        return Reason.OK
+
+    def set_velocity(self, t_tai_ns: int, velocity_km_s: tuple[float, float, float]
+                     ) -> Reason:
+        self.mailbox.post(velocity=(int(t_tai_ns), tuple(velocity_km_s)))
         return Reason.OK
 
     def status(self) -> dict:
@@ -113,28 +122,28 @@ class DaemonLink:
     def counts(self) -> LinkCounts:
         return LinkCounts(self.link.stats(), self.link.rx_rejects, self.link.drops)
 
-    def _wire_time(self, t_ns: int) -> tuple[int, int]:
-        offset = self._time_offset_ns
-        if offset is None:
-            return t_ns, 0
-        return t_ns + offset, int(AttitudeFlag.TIME_SYNCED)
-
-    def send_frame(self, frame: Frame, result, mode: Mode) -> None:
-        """ATTITUDE (and CENTROIDS when due) for one frame.
+    def send_frame(self, frame: Frame, result, mode: Mode, observer: Observer) -> None:
+        """ATTITUDE (and CENTROIDS when due) for one frame seen in ``observer``'s context.
 
         ``result`` is the pipeline's FrameResult, or None for a frame taken
         but not processed (STANDBY): ATTITUDE then has VALID clear.
         """
         sol = None if result is None else result.solution
         ok = bool(sol is not None and sol.ok)
-        t_ns, flags = self._wire_time(frame.t_ns)
+        t_ns, flags = frame.t_ns, 0
+        if observer.t_tai_ns is not None:
+            t_ns, flags = observer.t_tai_ns, AttitudeFlag.TIME_SYNCED
+        if ok and Correction.ANNUAL_ABERRATION in observer.corrections:
+            flags |= AttitudeFlag.ANNUAL_ABERRATION
+        if ok and Correction.OBSERVER_VELOCITY in observer.corrections:
+            flags |= AttitudeFlag.OBSERVER_VELOCITY
         rate = sol.rate_rad_s if ok else None
         self.link.send_attitude(
             frame_id=frame.index & _U32, t_ns=t_ns, q=np.asarray(sol.q) if ok else None,
             sigma_cross_arcsec=float(sol.sigma_cross_arcsec) if ok else math.nan,
             sigma_roll_arcsec=float(sol.sigma_roll_arcsec) if ok else math.nan,
             matched=int(sol.matched) if ok else 0, mode=mode,
-            flags=flags, rate_dps=np.degrees(rate) if rate is not None else None)
+            flags=int(flags), rate_dps=np.degrees(rate) if rate is not None else None)
         if result is None or self.link.gate.rates_hz.get(MsgId.CENTROIDS, 0) <= 0:
             return
         stars = result.detections.stars

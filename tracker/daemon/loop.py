@@ -25,8 +25,10 @@ mirror the link's counters, and publish a new STATUS snapshot (sent at
 ``link.status_rate_hz``; a systemd STATUS line every
 ``service.status_period_s``).
 
-The processing step (:meth:`Daemon.process`): count the frame; in STANDBY
-send ATTITUDE with VALID clear; otherwise run the pipeline, update the mode
+The processing step (:meth:`Daemon.process`): count the frame; give it its
+observer context (absolute time and velocity: :mod:`tracker.daemon.timebase`,
+which TIME_SYNC and SET_VELOCITY feed); in STANDBY send ATTITUDE with VALID
+clear; otherwise run the pipeline, update the mode
 (:mod:`tracker.daemon.modes`) and the exposure, and send ATTITUDE and
 CENTROIDS (the link applies their output rates). Capture and processing are
 separate steps so that they can overlap (capture of frame N+1 while N is
@@ -60,6 +62,7 @@ import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
+from tracker.astrometry.observer import Observer, TimeSource
 from tracker.board import cpu_temperature_c
 from tracker.capture.base import Frame, FrameError, Waiting
 from tracker.capture.live import TIMEOUT_REASON, WAIT_SLICE_S
@@ -71,6 +74,7 @@ from tracker.daemon.health import Health
 from tracker.daemon.modes import ModeMachine
 from tracker.daemon.notify import Notifier, Watchdog, watchdog_interval_s
 from tracker.daemon.status import StatusSnapshot
+from tracker.daemon.timebase import TimeBase
 from tracker.protocol.messages import ErrorCode, Mode
 
 __all__ = ["Daemon", "FrameReport", "EXIT_LINK_FAILED"]
@@ -104,16 +108,18 @@ class Daemon:
     """The loop of the module docstring, with every stage injected.
 
     ``source_factory()`` returns a new FrameSource (called again after the
-    source fails); ``pipeline.process(image, bit_depth, t_ns)`` returns a
-    :class:`~tracker.pipeline.FrameResult` and ``pipeline.reset()`` forgets
-    the tracking lock; ``link`` is a :class:`~tracker.daemon.link.DaemonLink`
-    or anything with its methods. ``clock`` (tests: a virtual one) times
-    every wait. ``on_frame(report)`` is called after each processed frame
-    (benchmarks).
+    source fails); ``pipeline.process(image, bit_depth, t_ns, observer)``
+    returns a :class:`~tracker.pipeline.FrameResult` and ``pipeline.reset()``
+    forgets the tracking lock; ``link`` is a
+    :class:`~tracker.daemon.link.DaemonLink` or anything with its methods.
+    ``clock`` (tests: a virtual one) times every wait; ``timebase`` (tests)
+    replaces the :class:`~tracker.daemon.timebase.TimeBase` of ``cfg.time``.
+    ``on_frame(report)`` is called after each processed frame (benchmarks).
     """
 
     def __init__(self, cfg: Config, *, source_factory: Callable, pipeline, link,
                  notifier: Notifier | None = None, clock: Clock | None = None,
+                 timebase: TimeBase | None = None,
                  on_frame: Callable[[FrameReport], None] | None = None):
         self.cfg = cfg
         self.scfg = cfg.service
@@ -126,6 +132,7 @@ class Daemon:
         self.health = Health(self.clock.now_ns)
         self.modes = ModeMachine(cfg.service)
         self.exposure = ExposureControl(cfg.capture)
+        self.timebase = timebase or TimeBase(cfg.time)
         self.on_frame = on_frame
         self.link_failure: str | None = None
         self._config_crc = config_checksum(cfg)
@@ -134,6 +141,7 @@ class Daemon:
         self._source = None
         self._ready = False
         self._sensor: tuple[float | None, float | None] = (None, None)   # exposure, gain
+        self._observer: Observer | None = None      # the latest frame's
         self._temp_c = float("nan")
         self._logged: dict[ErrorCode, int] = {}
         self._next = {"stall": 0, "systemd_status": 0, "temperature": 0}
@@ -265,15 +273,17 @@ class Daemon:
         if not self._ready:
             self._mark_ready(f"first frame {item.name}")
         self._sensor = (item.exposure_us, item.gain)
+        observer = self._observer = self.timebase.observer_for(item)
         if not self.modes.processing:
             self.modes.frame_ok()
-            self.link.send_frame(item, None, self.mode)
+            self.link.send_frame(item, None, self.mode, observer)
             return
-        self._solve(item, t_avail, (t_avail - t0_ns) / 1e6)
+        self._solve(item, observer, t_avail, (t_avail - t0_ns) / 1e6)
 
-    def _solve(self, frame: Frame, t_avail: int, capture_ms: float) -> None:
+    def _solve(self, frame: Frame, observer: Observer, t_avail: int, capture_ms: float
+               ) -> None:
         try:
-            result = self.pipeline.process(frame.image, frame.bit_depth, frame.t_ns)
+            result = self.pipeline.process(frame.image, frame.bit_depth, frame.t_ns, observer)
         except Exception as exc:    # a stage that raises loses this frame only
             self._fault(ErrorCode.STAGE_ERROR, f"{frame.name}: {type(exc).__name__}: {exc}",
                         exc)
@@ -291,7 +301,7 @@ class Daemon:
         if self.exposure.update(result.detections, frame.bit_depth):
             self._apply_exposure()
         t_ctl = self.clock.now_ns()
-        self.link.send_frame(frame, result, self.mode)
+        self.link.send_frame(frame, result, self.mode, observer)
         t_end = self.clock.now_ns()
         latency = (t_end - t_avail) / 1e6
         self.health.processed += 1
@@ -338,9 +348,21 @@ class Daemon:
         if cmds.exposure_us is not None or cmds.gain is not None:
             self.exposure.set_manual(cmds.exposure_us, cmds.gain)
             self._apply_exposure()
+        if cmds.time_offset_ns is not None:
+            self.timebase.time_sync(cmds.time_offset_ns)
+        if cmds.velocity is not None:
+            self.timebase.set_velocity(*cmds.velocity)
+
+    def _status_observer(self) -> Observer:
+        """STATUS's context: a frame's taken now (a replayed record's: the latest frame's)."""
+        last = self._observer
+        if last is not None and last.time_source == TimeSource.RECORD:
+            return last
+        return self.timebase.observer_at(self.clock.now_ns())
 
     def _snapshot(self) -> StatusSnapshot:
         h = self.health
+        observer = self._status_observer()
         exposure_us, gain = self._sensor
         return StatusSnapshot(
             uptime_s=int(h.uptime_s), frame_rate_hz=h.frame_rate_hz,
@@ -348,7 +370,8 @@ class Daemon:
             gain=float(self.exposure.gain if gain is None else gain),
             cpu_temp_c=self._temp_c, mode=int(self.mode), frames=h.frames,
             capture_faults=h.capture_faults, solve_failures=h.solve_failures,
-            last_error=int(h.last_error), config_crc=self._config_crc)
+            last_error=int(h.last_error), config_crc=self._config_crc,
+            time_source=int(observer.time_source), corrections=int(observer.corrections))
 
     def _mirror_link(self) -> None:
         counts = self.link.counts()

@@ -3,7 +3,7 @@
 Usage::
 
     solver = make_solver(cfg.identify, camera, catalogue)
-    sol = solver.solve(detections.stars, t_ns)
+    sol = solver.solve(detections.stars, t_ns, observer)   # observer: aberration (optional)
     if sol.ok: sol.q, sol.ra_deg, sol.dec_deg, sol.roll_deg, sol.hip,
                sol.focal_length_mm, sol.lens ...
 

@@ -34,6 +34,17 @@ last attitude and rate (for tracking) and the lens estimate.
    solved once more through the filtered lens (Wahba), with sigmas from the
    residuals blended with the ``centroid_sigma_px`` prior.
 
+Aberration: with the frame's observer context (an absolute time, perhaps a
+velocity: tracker.astrometry.observer) the catalogue directions of tracking
+and refinement (predictions, the lens fit, Wahba) are the apparent ones for
+that observer, so the attitude solved is the ICRS attitude and the lens fit
+does not take aberration's scale (up to 1.3e-4) for a focal length. Lost in
+space uses the database's astrometric directions: aberration moves a field
+nearly as a rotation, which the hypothesis' attitude absorbs (up to 25
+arcsec, well within the refinement's first three-pixel pass), and the
+remainder (|beta| times the angle from the boresight: 0.13 px in the
+corners of an 8 mm lens's field) is well inside the match radius.
+
 When lost in space fails but a search over a wider focal-length range
 (``identify.focal_search``) verifies, the frame is still failed (the
 configuration disagrees with the sky) and ``reason`` says which focal
@@ -52,6 +63,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tracker.astrometry.aberration import aberrate
 from tracker.attitude import (
     attitude_covariance,
     matrix_from_rotation_vector,
@@ -240,6 +252,7 @@ class Solver:
         self._last_t: int | None = None
         self._rate: np.ndarray | None = None   # rotation vector rate of R, rad/s
         self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
+        self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
 
     def lens_camera(self) -> CameraModel:
         """The camera model with the filtered focal length and k1."""
@@ -276,11 +289,15 @@ class Solver:
 
     # -- public --------------------------------------------------------------
 
-    def solve(self, stars, t_ns: int) -> Solution:
-        """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module."""
+    def solve(self, stars, t_ns: int, observer=None) -> Solution:
+        """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module.
+
+        ``observer``: the frame's tracker.astrometry.observer.Observer (None: unknown).
+        """
         timer = self._timer
         timer.reset()
         timer.start("prepare")
+        self._beta = None if observer is None else observer.beta()
         n_in = len(stars) if hasattr(stars, "__len__") else 0
         hip = np.zeros(n_in, dtype=np.int32)
         if self.fov_error is not None:
@@ -355,12 +372,17 @@ class Solver:
     def _track(self, xy, camera: CameraModel, t_ns: int) -> np.ndarray | None:
         """The attitude from the predicted one after one gated pass, or None."""
         R = self._predicted(t_ns)
-        cat_idx, pred = self._cat_proj.predict(R, camera)
+        cat_idx, pred = self._cat_proj.predict(R, camera, beta=self._beta)
         which, _ = match_nearest(xy, pred, self.cfg.track_gate_px)
         ok = which >= 0
         if np.count_nonzero(ok) < self.cfg.min_matched:
             return None
-        return solve_wahba(camera.pixel_to_vector(xy[ok]), self._cat_vectors[cat_idx[which[ok]]])
+        return solve_wahba(camera.pixel_to_vector(xy[ok]), self._seen(cat_idx[which[ok]]))
+
+    def _seen(self, cat_idx: np.ndarray) -> np.ndarray:
+        """Catalogue directions as this frame's observer sees them (module docstring)."""
+        ref = self._cat_vectors[cat_idx]
+        return ref if self._beta is None else aberrate(ref, self._beta)
 
     def _lost_in_space(self, xy, camera: CameraModel, f_low: float, f_high: float,
                        budget: WorkBudget, skip_f=None):
@@ -437,7 +459,7 @@ class Solver:
 
     def _match_catalogue(self, R, camera, xy, flux, radius: float):
         """(ok mask, which, cat_idx, predictions) of the image stars against the catalogue."""
-        cat_idx, pred = self._cat_proj.predict(R, camera)
+        cat_idx, pred = self._cat_proj.predict(R, camera, beta=self._beta)
         which, _ = match_nearest(xy, pred, radius)
         ok = which >= 0
         self._photometric_check(ok, which, cat_idx, flux)
@@ -464,7 +486,7 @@ class Solver:
                                                           self._first_radius())
             if np.count_nonzero(ok) < 4:
                 return None
-            first = fit_frame(xy[ok], self._cat_vectors[cat_idx[which[ok]]], R, camera,
+            first = fit_frame(xy[ok], self._seen(cat_idx[which[ok]]), R, camera,
                               self._prior, cfg.centroid_sigma_px)
             R, camera, radius = first.R, first.camera, self._final_radius(first.residuals)
         ok, which, cat_idx, pred = self._match_catalogue(R, camera, xy, flux, radius)
@@ -475,7 +497,7 @@ class Solver:
                 return None
         if n < 4:
             return None
-        ref = self._cat_vectors[cat_idx[which[ok]]]
+        ref = self._seen(cat_idx[which[ok]])
         frame = fit_frame(xy[ok], ref, R, camera, self._prior, cfg.centroid_sigma_px)
         self._radius = self._final_radius(frame.residuals)
         self.lens.update(frame, t_ns)

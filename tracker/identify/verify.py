@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 
+from tracker.astrometry.aberration import aberrate
 from tracker.camera import CameraModel
 from tracker.identify.skyindex import DecSorted
 
@@ -58,14 +59,19 @@ class Projector:
         rho /= max(0.5, 1.0 + r2 * (camera.k1 + camera.k2 * r2))
         return 1.01 * math.atan(rho) + 2.0 / camera.f_px
 
-    def predict(self, R: np.ndarray, camera: CameraModel, margin_px: float = 0.0
-                ) -> tuple[np.ndarray, np.ndarray]:
+    def predict(self, R: np.ndarray, camera: CameraModel, margin_px: float = 0.0,
+                beta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Indices (into ``vectors``) and pixel positions (m, 2) of stars in the image.
 
-        ``margin_px`` keeps predictions this far inside the image.
+        ``margin_px`` keeps predictions this far inside the image. With
+        ``beta`` (the observer's velocity / c, ICRS) the stars are placed at
+        their apparent directions (tracker.astrometry.aberration; at most 25
+        arcsec from the astrometric ones, inside the cone's two pixels of
+        slack) and ``R`` is the ICRS attitude.
         """
         near = np.sort(self.index.cone(R[2], self._cone_radius(camera)))
-        pix = camera.vector_to_pixel(self.vectors[near] @ R.T)
+        seen = self.vectors[near] if beta is None else aberrate(self.vectors[near], beta)
+        pix = camera.vector_to_pixel(seen @ R.T)
         inside = camera.in_frame(pix, margin_px)
         return near[inside], pix[inside]
 

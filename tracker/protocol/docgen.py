@@ -26,12 +26,14 @@ from tracker.protocol.messages import (
     MESSAGES,
     TYPES,
     AttitudeFlag,
+    Correction,
     Direction,
     ErrorCode,
     MessageDef,
     Mode,
     MsgId,
     Reason,
+    TimeSource,
 )
 
 __all__ = ["render_sections", "render_c_header", "apply_sections"]
@@ -84,11 +86,18 @@ def _ids() -> str:
     return "\n".join(rows)
 
 
+def _bits(flag) -> list:
+    """The single-bit members of an IntFlag (not its 0-valued NONE)."""
+    return [e for e in flag.__members__.values() if int(e)]
+
+
 def _enums() -> str:
     out = []
     for title, enum in (("Mode", Mode), ("Reason (ACK/NACK `code`)", Reason),
                         ("AttitudeFlag (bits of ATTITUDE `flags`; other bits are 0)",
-                         AttitudeFlag)):
+                         AttitudeFlag), ("TimeSource (STATUS `time_source`)", TimeSource),
+                        ("Correction (bits of STATUS `corrections`; other bits are 0)",
+                         _bits(Correction))):
         out += [f"**{title}**", "", "| value | name |", "|---:|---|"]
         out += [f"| {int(e)} | {e.name} |" for e in enum]
         out.append("")
@@ -195,7 +204,9 @@ def _c_parse(m: MessageDef) -> list[str]:
 
 
 def _c_literal(f, value) -> str:
-    return f"{float(value)!r}f" if f.type == "f32" else f"{int(value)}u"
+    if f.type == "f32":
+        return f"{float(value)!r}f"
+    return f"{int(value)}ull" if f.type == "u64" else f"{int(value)}u"
 
 
 def _c_range_check(f) -> str:
@@ -334,6 +345,12 @@ def render_c_header() -> str:
     out += [f"    ST_{e.name} = {int(e)}," for e in Reason]
     out += ["};", "", "enum st_attitude_flag {"]
     out += [f"    ST_ATT_{e.name} = {int(e)}," for e in AttitudeFlag]
+    out += ["};", "", "/* STATUS.time_source: where the frames' absolute time comes from. */",
+            "enum st_time_source {"]
+    out += [f"    ST_TIME_{e.name} = {int(e)}," for e in TimeSource]
+    out += ["};", "", "/* Bits of STATUS.corrections: what the solver corrects. */",
+            "enum st_correction {"]
+    out += [f"    ST_CORR_{e.name} = {int(e)}," for e in _bits(Correction)]
     out += ["};", "", "/* STATUS.last_error: the latest fault the tracker survived. */",
             "enum st_error_code {"]
     out += [f"    ST_ERR_{e.name} = {int(e)}, /* {ERROR_MEANING[e]} */" for e in ErrorCode]

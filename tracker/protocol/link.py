@@ -18,7 +18,7 @@ sent) sheds the oldest waiting replies. Every drop is counted.
 
 A reader thread decodes commands from the FC and answers each with exactly
 one ACK or NACK. PING, SET_OUTPUT and REQUEST_STATUS are handled here;
-SET_MODE, SET_EXPOSURE, SET_GAIN and TIME_SYNC go to the daemon's
+SET_MODE, SET_EXPOSURE, SET_GAIN, TIME_SYNC and SET_VELOCITY go to the daemon's
 :class:`CommandHandler`, called on the reader thread. Commands with a bad
 CRC, unknown id, wrong length or out-of-range field are NACKed without
 calling it. If the port fails (open, read or write), it is closed and
@@ -70,7 +70,10 @@ LINK_STATUS_FIELDS = ("link_drops", "link_reopens", "rx_rejects")
 # Decoder counters that are FC packets refused (STATUS rx_rejects).
 _RX_REJECTS = ("bad_header", "bad_crc", "unknown_id", "wrong_length", "out_of_range")
 _LOGGED_ERRORS = 5
-_SENT_FLAGS = AttitudeFlag.TIME_SYNCED   # the only flag a caller may add
+# The flags a caller may add (the aberration ones only to a VALID attitude).
+_SENT_FLAGS = (AttitudeFlag.TIME_SYNCED | AttitudeFlag.ANNUAL_ABERRATION
+               | AttitudeFlag.OBSERVER_VELOCITY)
+_CORRECTION_FLAGS = AttitudeFlag.ANNUAL_ABERRATION | AttitudeFlag.OBSERVER_VELOCITY
 
 
 class CommandHandler(Protocol):
@@ -88,7 +91,11 @@ class CommandHandler(Protocol):
     def set_gain(self, gain: float) -> Reason: ...
 
     def time_sync(self, offset_ns: int) -> Reason:
-        """FC clock = tracker monotonic clock + offset_ns (transmission time removed)."""
+        """TAI (the FC's) = tracker monotonic clock + offset_ns (transmission time removed)."""
+
+    def set_velocity(self, t_tai_ns: int, velocity_km_s: tuple[float, float, float]
+                     ) -> Reason:
+        """The observer's geocentric velocity (ICRS, km/s) holding at TAI ``t_tai_ns``."""
 
     def status(self) -> dict:
         """Every STATUS field except :data:`LINK_STATUS_FIELDS` (the link fills those in),
@@ -243,13 +250,15 @@ class Link:
         q = [w, x, y, z] (v_cam = R v_icrs) or None when there is no solution
         (sent as NaN, VALID clear). rate_dps (deg/s about camera X, Y, Z) or
         None (NaN, RATE_VALID clear). VALID and RATE_VALID are set from these;
-        ``flags`` may add TIME_SYNCED. Integers saturate at their wire type.
+        ``flags`` may add TIME_SYNCED, and to a VALID attitude ANNUAL_ABERRATION
+        and OBSERVER_VELOCITY. Integers saturate at their wire type.
         """
         if not self.gate.due(MsgId.ATTITUDE, self._clock()):
             return False
         flags = int(flags) & _SENT_FLAGS
         if q is None:
             q = (_NAN,) * 4
+            flags &= ~_CORRECTION_FLAGS
         else:
             flags |= AttitudeFlag.VALID
         if rate_dps is None:
@@ -489,4 +498,6 @@ class Link:
             # The packet's first byte left the FC one transmission time before its last arrived.
             sent_ns = self._rx_t_ns - round(packet_len * BITS_PER_BYTE * 1e9 / self.cfg.baudrate)
             return h.time_sync(v["fc_time_ns"] - sent_ns)
+        if msg_id == MsgId.SET_VELOCITY:
+            return h.set_velocity(v["t_ns"], (v["vx_km_s"], v["vy_km_s"], v["vz_km_s"]))
         return Reason.UNKNOWN_ID

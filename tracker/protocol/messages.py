@@ -19,9 +19,12 @@ from functools import cached_property
 
 import numpy as np
 
+from tracker.astrometry.observer import VELOCITY_LIMIT_KM_S, Correction, TimeSource
+from tracker.astrometry.timescale import TAI_NS_MAX, TAI_NS_MIN
+
 __all__ = [
     "Field", "MessageDef", "MsgId", "Mode", "Reason", "AttitudeFlag", "ErrorCode",
-    "ERROR_MEANING", "Direction",
+    "ERROR_MEANING", "Direction", "TimeSource", "Correction",
     "MESSAGES", "BY_ID", "TYPES", "MAX_STARS_PER_PACKET", "PayloadError", "saturate",
 ]
 
@@ -59,6 +62,7 @@ class MsgId(enum.IntEnum):
     PING = 0x024
     REQUEST_STATUS = 0x025
     TIME_SYNC = 0x026
+    SET_VELOCITY = 0x027
 
 
 class Mode(enum.IntEnum):
@@ -87,7 +91,10 @@ class AttitudeFlag(enum.IntFlag):
 
     VALID = 1          # the quaternion and sigmas hold a solution for this frame
     RATE_VALID = 2     # rate_x/y/z hold a rate measured over at most identify.track_max_gap_s
-    TIME_SYNCED = 4    # t_ns is on the FC's clock (after TIME_SYNC), else the tracker's
+    TIME_SYNCED = 4    # t_ns is TAI ns since 1970 (STATUS time_source: from where), else the
+    #                    tracker's monotonic clock
+    ANNUAL_ABERRATION = 8    # with VALID: corrected for the Earth's velocity (q is ICRS)
+    OBSERVER_VELOCITY = 16   # with VALID: also for the observer's velocity (SET_VELOCITY)
 
 
 class ErrorCode(enum.IntEnum):
@@ -269,8 +276,8 @@ def _f(name, type_, unit, doc, **kw) -> Field:
 
 
 _FRAME_ID = _f("frame_id", "u32", "", "frame counter since start, wraps at 2^32")
-_T_NS = _f("t_ns", "u64", "ns", "exposure mid-time (tracker monotonic clock, or FC clock "
-           "when TIME_SYNCED), saturated to 0 .. 2^64-1")
+_T_NS = _f("t_ns", "u64", "ns", "exposure mid-point: TAI ns since 1970 when TIME_SYNCED, "
+           "else the tracker's monotonic clock (section 6)")
 _REPLY = (
     _f("cmd_id", "u16", "", "id (APID) of the command answered"),
     _f("cmd_seq", "u16", "", "sequence count of the command answered"),
@@ -329,6 +336,10 @@ MESSAGES: tuple[MessageDef, ...] = (
            "CRC, unknown id, wrong length, out of range"),
         _f("last_error", "u16", "", "ErrorCode of the latest fault, 0 = none since start"),
         _f("config_crc", "u32", "", "checksum of the effective configuration"),
+        _f("time_source", "u8", "", "TimeSource of the latest frame's absolute time "
+           "(before the first frame: what one would get now)"),
+        _f("corrections", "u8", "", "Correction bits the solver applies to the latest frame "
+           "(before the first frame: what it would apply now)"),
     ), priority=3),
     MessageDef(MsgId.ACK, _TM, "command accepted", _REPLY, priority=1),
     MessageDef(MsgId.NACK, _TM, "command refused; nothing changed", _REPLY, priority=1),
@@ -348,9 +359,21 @@ MESSAGES: tuple[MessageDef, ...] = (
     )),
     MessageDef(MsgId.PING, _TC, "link check; answered by ACK", ()),
     MessageDef(MsgId.REQUEST_STATUS, _TC, "ACK, then one STATUS at once", ()),
-    MessageDef(MsgId.TIME_SYNC, _TC, "FC clock at the first byte of this frame", (
-        _f("fc_time_ns", "u64", "ns", "FC time when the first ASM byte left its UART",
-           lo=0, hi=2**63 - 1),)),
+    MessageDef(MsgId.TIME_SYNC, _TC, "the FC's absolute time (TAI) at the first byte of "
+               "this packet", (
+        _f("fc_time_ns", "u64", "ns", "TAI ns since 1970-01-01T00:00:00 TAI when the first "
+           "ASM byte left the FC's UART (1972 .. 2200)", lo=TAI_NS_MIN, hi=TAI_NS_MAX),)),
+    MessageDef(MsgId.SET_VELOCITY, _TC, "the observer's velocity relative to the Earth's "
+               "centre, for aberration (section 6.2)", (
+        _f("t_ns", "u64", "ns", "TAI ns since 1970 at which the velocity holds (1972 .. 2200)",
+           lo=TAI_NS_MIN, hi=TAI_NS_MAX),
+        _f("vx_km_s", "f32", "km/s", "along ICRS +X (RA 0, Dec 0)",
+           lo=-VELOCITY_LIMIT_KM_S, hi=VELOCITY_LIMIT_KM_S),
+        _f("vy_km_s", "f32", "km/s", "along ICRS +Y (RA 90 deg, Dec 0)",
+           lo=-VELOCITY_LIMIT_KM_S, hi=VELOCITY_LIMIT_KM_S),
+        _f("vz_km_s", "f32", "km/s", "along ICRS +Z (Dec +90 deg)",
+           lo=-VELOCITY_LIMIT_KM_S, hi=VELOCITY_LIMIT_KM_S),
+    )),
 )
 
 BY_ID: dict[int, MessageDef] = {m.id: m for m in MESSAGES}
