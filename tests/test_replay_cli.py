@@ -1,4 +1,4 @@
-"""`tracker replay` end to end: simulated frames in, the DESIGN.md contract out."""
+"""`tracker replay` end to end: simulated frames in, the contract of docs/conventions.md out."""
 
 import json
 import re
