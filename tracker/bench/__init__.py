@@ -12,4 +12,5 @@ BENCHES = {
     "protocol": "tracker.bench.protocol",
     "solve": "tracker.bench.solve",
     "soak": "tracker.bench.soak",
+    "api": "tracker.bench.api",
 }

@@ -10,7 +10,7 @@ from tracker.bench import BENCHES
 
 def register(sub, common) -> None:
     p = sub.add_parser("bench", parents=[common], help="run a benchmark (detect, solve, "
-                       "protocol, soak, all) and write Markdown/JSON reports")
+                       "protocol, soak, api, all) and write Markdown/JSON reports")
     names = p.add_subparsers(dest="bench", metavar="NAME", required=True)
     for name, module in BENCHES.items():
         mod = importlib.import_module(module)
