@@ -6,6 +6,7 @@ import pytest
 
 from tracker.capture import Frame, FrameError, ReplaySource
 from tracker.capture.imagefile import ImageReadError, read_image
+from tracker.errors import UserError
 
 
 @pytest.fixture(name="frame10")
@@ -122,7 +123,7 @@ def test_replay_loop_and_pacing(tmp_path, frame10):
 
 
 def test_missing_path_is_named(tmp_path):
-    with pytest.raises(FileNotFoundError, match=r"nothing.png: no such file or folder"):
+    with pytest.raises(UserError, match=r"nothing.png: no such file or folder"):
         ReplaySource([tmp_path / "nothing.png"])
 
 
@@ -135,3 +136,38 @@ def test_frames_jsonl_metadata_is_carried(tmp_path, frame10):
     a, b = list(ReplaySource([tmp_path]))
     assert (a.t_ns, a.exposure_us, a.gain) == (1000, 20000, 4.0)
     assert (b.t_ns, b.exposure_us, b.gain) == (34333333, None, None)
+
+
+class _FakeClock:
+    """monotonic_ns/sleep on a virtual clock: sleeps are recorded and advance it."""
+
+    def __init__(self):
+        self.now_ns = 10**12
+        self.sleeps = []
+
+    def monotonic_ns(self):
+        return self.now_ns
+
+    def sleep(self, seconds):
+        self.sleeps.append(seconds)
+        self.now_ns += int(seconds * 1e9)
+
+
+def test_slow_pacing_waits_in_slices_and_says_so(tmp_path, frame10, monkeypatch):
+    """At 0.15 fps a frame is 6.7 s away: the source yields Waiting every slice meanwhile."""
+    from tracker.capture import Waiting
+    from tracker.capture import replay as replay_module
+    from tracker.capture.live import WAIT_SLICE_S
+
+    clock = _FakeClock()
+    monkeypatch.setattr(replay_module, "time", clock)
+    cv2.imwrite(str(tmp_path / "a.png"), frame10)
+    cv2.imwrite(str(tmp_path / "b.png"), frame10)
+    items = list(ReplaySource([tmp_path], fps=0.15))
+    frames = [i for i in items if isinstance(i, Frame)]
+    assert [f.name for f in frames] == ["a.png", "b.png"]
+    assert max(clock.sleeps) <= WAIT_SLICE_S
+    between = items[items.index(frames[0]) + 1:items.index(frames[1])]
+    assert between and all(isinstance(i, Waiting) for i in between)
+    assert len(between) == int(np.ceil((1 / 0.15) / WAIT_SLICE_S)) - 1
+    assert between[-1].waited_s == pytest.approx(1 / 0.15 - WAIT_SLICE_S, abs=WAIT_SLICE_S)

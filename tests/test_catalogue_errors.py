@@ -48,7 +48,7 @@ def load_error(path: Path) -> str:
 
 
 def test_the_copy_loads(copy):
-    assert len(load_catalogue(copy, epoch_year=2000.0)) == 37622
+    assert len(load_catalogue(copy, epoch_year=2000.0)) == 78352
 
 
 def test_missing_file(tmp_path):
@@ -105,14 +105,14 @@ def test_wrong_length(tmp_path):
     arrays = bundled_arrays()
     arrays["dec_rad"] = arrays["dec_rad"][:-1]
     path = save_npz(tmp_path / "c.npz", arrays)
-    assert load_error(path) == f"{path}: array 'dec_rad' has shape (37621,), expected (37622,)"
+    assert load_error(path) == f"{path}: array 'dec_rad' has shape (78351,), expected (78352,)"
 
 
 def test_two_dimensional_hip(tmp_path):
     arrays = bundled_arrays()
     arrays["hip"] = arrays["hip"].reshape(-1, 2)
     path = save_npz(tmp_path / "c.npz", arrays)
-    assert load_error(path) == f"{path}: array 'hip' has shape (18811, 2), expected (18811,)"
+    assert load_error(path) == f"{path}: array 'hip' has shape (39176, 2), expected (39176,)"
 
 
 def test_scalar_that_is_not_a_scalar(tmp_path):

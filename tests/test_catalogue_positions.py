@@ -90,14 +90,22 @@ def test_magnitude_limit_keeps_the_bright_prefix(j2000):
     assert cat.mag.max() <= 6.0 and j2000.mag[n] > 6.0
     np.testing.assert_array_equal(cat.hip, j2000.hip[:n])
     np.testing.assert_array_equal(cat.vectors, j2000.vectors[:n])
-    assert cat.mag_limit == 6.0 and j2000.mag_limit == 8.0
+    assert cat.mag_limit == 6.0 and j2000.mag_limit == 9.0
+    assert j2000.follow_field and not cat.follow_field
+
+
+def test_brightest_is_the_same_prefix_without_copies(j2000):
+    cat = j2000.brightest(6.0)
+    assert len(cat) == 4559 and not cat.follow_field and cat.mag_limit == 6.0
+    assert np.shares_memory(cat.vectors, j2000.vectors)
+    np.testing.assert_array_equal(cat.hip, load_catalogue(epoch_year=2000.0, mag_limit=6.0).hip)
 
 
 def test_magnitude_limit_beyond_the_file_is_refused():
     with pytest.raises(CatalogueError,
-                       match=r"stars\.npz: holds stars to Hp 8, cannot give mag_limit 9; "
-                             r"rebuild it with tools/build_catalogue\.py --mag-limit 9"):
-        load_catalogue(mag_limit=9.0)
+                       match=r"stars\.npz: holds stars to Hp 9, cannot give mag_limit 9\.5; "
+                             r"rebuild it with tools/build_catalogue\.py --mag-limit 9\.5"):
+        load_catalogue(mag_limit=9.5)
 
 
 def test_from_config_uses_the_section():

@@ -8,7 +8,7 @@ import pytest
 from tracker.protocol import docgen
 from tracker.protocol.decoder import StreamDecoder
 from tracker.protocol.encoder import Encoder
-from tracker.protocol.framing import build_frame, crc16
+from tracker.protocol.framing import build_packet, crc16
 from tracker.protocol.messages import BY_ID, MESSAGES, Direction, MsgId, Reason
 
 
@@ -98,5 +98,5 @@ def test_icd_and_c_header_match_the_message_table():
 
 
 def test_frame_builder_puts_length_minus_one_in_the_header():
-    frame = build_frame(0x7FF, False, 5, b"\x00" * 10)
+    frame = build_packet(0x7FF, False, 5, b"\x00" * 10)
     assert frame[8:10] == (10 + 2 - 1).to_bytes(2, "big")

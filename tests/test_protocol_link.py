@@ -24,7 +24,8 @@ from tracker.protocol.nullmodem import NullModem
 STATUS = {
     "uptime_s": 7, "frame_rate_hz": 29.5, "exposure_us": 20000, "gain": 2.0,
     "cpu_temp_c": 51.5, "mode": Mode.TRACKING, "frames": 210, "capture_faults": 1,
-    "solve_failures": 2, "last_error": 0, "config_crc": 0xDEADBEEF,
+    "solve_failures": 2, "last_error": 0, "config_crc": 0xDEADBEEF, "time_source": 2,
+    "corrections": 1,
 }
 
 
@@ -48,6 +49,10 @@ class RecordingHandler:
 
     def time_sync(self, offset_ns):
         self.calls.append(("time_sync", offset_ns))
+        return Reason.OK
+
+    def set_velocity(self, t_tai_ns, velocity_km_s):
+        self.calls.append(("set_velocity", (t_tai_ns, velocity_km_s)))
         return Reason.OK
 
     def status(self):
@@ -98,12 +103,12 @@ def test_telemetry_through_pyserial_decodes_the_same_in_both_decoders(pty):
     with Link(_cfg(path, max_centroids=50, queue_status=8)) as link:
         for k in range(3):
             assert link.send_attitude(frame_id=k, t_ns=10**12 + k, q=[0.5, 0.5, -0.5, 0.5],
-                                      sigma_xy_arcsec=4.5, sigma_roll_arcsec=31.0, matched=14,
+                                      sigma_cross_arcsec=4.5, sigma_roll_arcsec=31.0, matched=14,
                                       mode=Mode.TRACKING, rate_dps=[0.1, -0.2, 0.3])
             link.send_centroids(k, 10**12 + k, stars)
             link.send_status(**STATUS)
             time.sleep(0.012)
-        link.send_attitude(frame_id=9, t_ns=1, q=None, sigma_xy_arcsec=math.nan,
+        link.send_attitude(frame_id=9, t_ns=1, q=None, sigma_cross_arcsec=math.nan,
                            sigma_roll_arcsec=math.nan, matched=0, mode=Mode.LOST_IN_SPACE)
         data = _read_for(master, 0.4)
     ours = StreamDecoder(Direction.TM).feed(data)
@@ -111,7 +116,7 @@ def test_telemetry_through_pyserial_decodes_the_same_in_both_decoders(pty):
     assert [p.name for p in ours].count("CENTROIDS") == 6      # 50 stars = 40 + 10, x3
     assert len(ours) == len(ref) == 3 * 4 + 1
     for p, r in zip(ours, ref, strict=True):
-        assert (p.id, p.seq, p.frame[10:-2]) == (r["apid"], r["seq"], r["payload"])
+        assert (p.id, p.seq, p.wire[10:-2]) == (r["apid"], r["seq"], r["payload"])
         for k, v in r["values"].items():
             assert p.values[k] == v or (math.isnan(v) and math.isnan(p.values[k]))
         if p.id == MsgId.CENTROIDS:
@@ -152,6 +157,8 @@ def _commands():
         (tc.encode(MsgId.SET_GAIN, gain=4.0), MsgId.NACK, Reason.REJECTED),
         (tc.encode(MsgId.SET_OUTPUT, msg_id=MsgId.STATUS, rate_hz=0.0), MsgId.ACK, Reason.OK),
         (tc.encode(MsgId.TIME_SYNC, fc_time_ns=5 * 10**18), MsgId.ACK, Reason.OK),
+        (tc.encode(MsgId.SET_VELOCITY, t_ns=1_800_000_000 * 10**9, vx_km_s=-7.5, vy_km_s=0.25,
+                   vz_km_s=1.0), MsgId.ACK, Reason.OK),
         (tc.encode(MsgId.REQUEST_STATUS), MsgId.ACK, Reason.OK),
     ]
 
@@ -176,7 +183,8 @@ def test_every_command_gets_the_right_ack_or_nack_and_bad_ones_change_nothing(pt
     assert replies[-1].values["rx_rejects"] == 7
     # Only the valid commands reached the service, in order.
     names = [c[0] for c in handler.calls]
-    assert names == ["set_mode", "set_exposure", "set_gain", "time_sync"]
+    assert names == ["set_mode", "set_exposure", "set_gain", "time_sync", "set_velocity"]
+    assert handler.calls[4][1] == (1_800_000_000 * 10**9, (-7.5, 0.25, 1.0))
     assert handler.calls[0][1] == Mode.TRACKING and handler.calls[1][1] == 15000
     # FC clock minus tracker clock: 5e18 minus a monotonic time that is << 1e18.
     assert 4 * 10**18 < handler.calls[3][1] < 5 * 10**18
@@ -192,7 +200,7 @@ def test_when_the_uart_is_too_slow_attitude_goes_first_and_oldest_are_dropped(pt
     for k in range(6):     # queued before the writer starts: it finds them all waiting
         link.send_status(**STATUS)
         link.send_centroids(k, k, stars)
-        link.send_attitude(frame_id=k, t_ns=k, q=[1, 0, 0, 0], sigma_xy_arcsec=1.0,
+        link.send_attitude(frame_id=k, t_ns=k, q=[1, 0, 0, 0], sigma_cross_arcsec=1.0,
                            sigma_roll_arcsec=1.0, matched=5, mode=Mode.TRACKING)
         time.sleep(0.011)
     link.start()
@@ -224,7 +232,7 @@ def test_a_port_that_fails_is_reopened_with_backoff(pty):
     deadline = time.monotonic() + 2
     while link.stats().get("reopens", 0) < 1 and time.monotonic() < deadline:
         time.sleep(0.01)
-    link.send_attitude(frame_id=1, t_ns=1, q=[1, 0, 0, 0], sigma_xy_arcsec=1.0,
+    link.send_attitude(frame_id=1, t_ns=1, q=[1, 0, 0, 0], sigma_cross_arcsec=1.0,
                        sigma_roll_arcsec=1.0, matched=5, mode=Mode.TRACKING)
     data = _read_for(master, 0.2)
     link.close()
@@ -251,7 +259,7 @@ def test_monitor_prints_attitude_as_ra_dec_roll_and_its_ping_is_acked(null_modem
         while not stop.is_set():
             # RA 90, Dec 0, roll 0: boresight +Y of ICRS (q from tracker.attitude).
             link.send_attitude(frame_id=k, t_ns=k, q=[0.7071068, 0.7071068, 0.0, 0.0],
-                               sigma_xy_arcsec=4.0, sigma_roll_arcsec=30.0, matched=9,
+                               sigma_cross_arcsec=4.0, sigma_roll_arcsec=30.0, matched=9,
                                mode=Mode.TRACKING)
             k += 1
             time.sleep(0.02)

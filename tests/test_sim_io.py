@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from tracker.capture.imagefile import read_image
-from tracker.cli import UserError
 from tracker.commands import simulate
 from tracker.config import SimConfig, load_config
+from tracker.errors import UserError
 from tracker.sim import render_points, truth_path, write_frame
 
 TRUTH_KEYS = {"frame", "seed", "q", "ra_deg", "dec_deg", "roll_deg", "epoch_year", "t_s",

@@ -148,3 +148,33 @@ def test_bad_attitude_and_rate_are_refused():
         render_sky(CAMERA, cat, np.eye(3), SimConfig(), rng, rate_deg_s=(1.0, 2.0))
     with pytest.raises(TypeError, match="camera must be a CameraConfig or CameraModel"):
         render_sky("ov2311", cat, np.eye(3), SimConfig(), rng)
+
+
+def test_aberration_moves_a_star_toward_the_apex_by_beta_sin_theta():
+    """With an absolute time, a star at 90 deg from the Earth's apex is drawn arcsin(v/c) off."""
+    from tracker.astrometry.aberration import observer_beta
+    from tracker.astrometry.timescale import tai_ns_from_utc_iso
+
+    t = tai_ns_from_utc_iso("2026-03-20T00:00:00Z")
+    leo = (3.0, -5.0, 4.0)
+    beta = observer_beta(t, leo)
+    apex = beta / np.linalg.norm(beta)
+    star = np.cross(apex, [0.0, 0.0, 1.0])
+    star /= np.linalg.norm(star)
+    cat = SimpleNamespace(vectors=star[None, :], mag=np.array([3.0], np.float32),
+                          hip=np.array([7], np.int32), epoch_year=2026.2)
+    ra, dec = np.arctan2(star[1], star[0]), np.arcsin(star[2])
+    R = matrix_from_radec_roll(ra, dec, 0.0)
+    cfg = SimConfig(noise_model="none", exposure_ms=5.0)
+    still = render_sky(CAMERA, cat, R, cfg, np.random.default_rng(0))
+    moving = render_sky(CAMERA, cat, R, cfg, np.random.default_rng(0), t_tai_ns=t,
+                        observer_velocity_km_s=leo)
+    shift_px = np.hypot(moving.stars["x"][0] - still.stars["x"][0],
+                        moving.stars["y"][0] - still.stars["y"][0])
+    assert shift_px == pytest.approx(F_PX * np.tan(np.arcsin(np.linalg.norm(beta))), rel=1e-6)
+    toward = (R @ apex)[:2]      # the apex's direction in the image plane
+    step = np.array([moving.stars["x"][0] - still.stars["x"][0],
+                     moving.stars["y"][0] - still.stars["y"][0]])
+    assert step @ toward > 0.99 * np.linalg.norm(step) * np.linalg.norm(toward)
+    assert moving.truth["utc"] == "2026-03-20T00:00:00.000000000Z"
+    assert moving.truth["observer_velocity_km_s"] == list(leo)

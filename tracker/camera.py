@@ -1,6 +1,6 @@
 """Camera model: pinhole with principal point and radial distortion.
 
-Conventions (DESIGN.md):
+Conventions (docs/conventions.md):
 
 * Pixel coordinates (x, y): x = column, y = row, origin at the centre of the
   top-left pixel (that pixel spans -0.5..0.5 in both axes).
@@ -31,7 +31,10 @@ _NEWTON_STEPS = 12
 
 @dataclass(frozen=True)
 class CameraModel:
-    """Intrinsics of one camera; build it with :meth:`from_config`."""
+    """Intrinsics of one camera; build it with :meth:`from_config`.
+
+    ``pixel_size_um`` (None if unknown) only converts focal lengths to mm.
+    """
 
     width: int
     height: int
@@ -40,6 +43,7 @@ class CameraModel:
     cy: float
     k1: float = 0.0
     k2: float = 0.0
+    pixel_size_um: float | None = None
 
     @classmethod
     def from_config(cls, cfg: CameraConfig) -> CameraModel:
@@ -52,6 +56,7 @@ class CameraModel:
             cy=(cfg.height - 1) / 2.0 if cfg.cy is None else cfg.cy,
             k1=cfg.k1,
             k2=cfg.k2,
+            pixel_size_um=cfg.pixel_size_um,
         )
 
     # -- geometry -----------------------------------------------------------
@@ -89,7 +94,10 @@ class CameraModel:
             r2 = rho * rho
             g = rho * (1.0 + r2 * (self.k1 + self.k2 * r2)) - rho_d
             dg = 1.0 + r2 * (3.0 * self.k1 + 5.0 * self.k2 * r2)
-            rho = rho - g / dg
+            step = g / dg
+            rho = rho - step
+            if not np.any(np.abs(step) > 1e-16 * (1.0 + rho_d)):
+                break   # converged (quadratically: 3-5 steps for real lenses)
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = np.where(rho_d > 0, rho / np.where(rho_d > 0, rho_d, 1.0), 1.0)
         return ud * ratio, vd * ratio

@@ -1,8 +1,8 @@
 """The bundled star catalogue: load it, check it, move it to the epoch.
 
-The file ``catalogue/stars.npz`` (built by ``tools/build_catalogue.py`` from
-ESA's Hipparcos new reduction, van Leeuwen 2007, CDS I/311; see
-``catalogue/README.md``) holds, per star, the HIP number, ICRS RA/Dec at
+The bundled file ``stars.npz`` (package data in ``tracker/data/``, built by
+``tools/build_catalogue.py`` from ESA's Hipparcos new reduction, van Leeuwen
+2007, CDS I/311; see ``tracker/data/README.md``) holds, per star, the HIP number, ICRS RA/Dec at
 epoch J1991.25, proper motion, parallax and Hp magnitude, sorted brightest
 first. Beside it, ``stars.npz.sha256`` holds its SHA-256 in ``sha256sum``
 format; :func:`load_catalogue` refuses a file whose bytes do not match.
@@ -19,8 +19,10 @@ where r0 is the unit vector at J1991.25 and mu0 = pmRA* p + pmDE q the
 proper-motion vector (p, q: unit vectors toward +RA and +Dec). The parallax
 then cancels out of the direction (it enters only through the radial
 proper motion, which is zero here), so it is not needed for positions.
-Positions stay barycentric: annual parallax (< 0.77 arcsec) and
-aberration (~20 arcsec) depend on the observer and are not applied here.
+Positions stay barycentric: annual parallax (< 0.77 arcsec, not applied)
+and aberration (~20 arcsec: the solver applies it for each frame's observer,
+tracker.astrometry) depend on the observer. The epoch follows the frames'
+absolute time when they have one (tracker.pipeline).
 
 Angles are radians; epochs are decimal Julian years (J2000.0 = 2000.0 =
 JD 2451545.0 TT; the system clock's UTC is used for "now", a difference of
@@ -29,6 +31,7 @@ about a minute, irrelevant for proper motion).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import io
 import math
@@ -41,6 +44,8 @@ import numpy as np
 
 from tracker.attitude import vector_to_radec
 from tracker.config import CatalogueConfig
+from tracker.data import data_dir
+from tracker.errors import UserError
 
 __all__ = [
     "Catalogue", "CatalogueError", "default_catalogue_path", "julian_year_now",
@@ -68,7 +73,7 @@ _STAR_ARRAYS = {
 _FORMAT_VERSION = 1
 
 
-class CatalogueError(ValueError):
+class CatalogueError(UserError, ValueError):
     """A catalogue file that cannot be used; the message is one line naming it."""
 
 
@@ -95,6 +100,11 @@ class Catalogue:
         Faintest Hp kept (the file's own limit when none was asked for).
     sha256 : str
         SHA-256 (hex) of the catalogue file, to tie derived data to it.
+    path : str
+        The file it was read from.
+    follow_field : bool
+        True when no magnitude limit was asked for: users of the catalogue
+        (the solver) may keep only the stars their field needs.
 
     The arrays are read-only.
     """
@@ -108,6 +118,8 @@ class Catalogue:
     epoch_year: float
     mag_limit: float
     sha256: str
+    path: str = ""
+    follow_field: bool = False
 
     def __len__(self) -> int:
         return int(self.hip.shape[0])
@@ -117,10 +129,18 @@ class Catalogue:
         """Load the catalogue the ``catalogue`` config section describes."""
         return load_catalogue(cfg.path, epoch_year=cfg.epoch_year, mag_limit=cfg.mag_limit)
 
+    def brightest(self, mag_limit: float) -> Catalogue:
+        """The stars with Hp <= mag_limit (a prefix: views, no copies), as a fixed limit."""
+        n = int(np.searchsorted(self.mag, np.float32(mag_limit), side="right"))
+        return dataclasses.replace(
+            self, hip=self.hip[:n], ra=self.ra[:n], dec=self.dec[:n], vectors=self.vectors[:n],
+            mag=self.mag[:n], bv=self.bv[:n], mag_limit=min(self.mag_limit, float(mag_limit)),
+            follow_field=False)
+
 
 def default_catalogue_path() -> Path:
-    """The repository's ``catalogue/stars.npz`` (the package is installed editable)."""
-    return Path(__file__).resolve().parent.parent / "catalogue" / "stars.npz"
+    """The bundled ``stars.npz``, package data of :mod:`tracker.data`."""
+    return data_dir() / "stars.npz"
 
 
 def julian_year_now() -> float:
@@ -211,8 +231,9 @@ def load_catalogue(path: str | Path | None = None, epoch_year: float | None = No
     ----------
     path : file, or None for :func:`default_catalogue_path`.
     epoch_year : decimal Julian year of the positions; None = now.
-    mag_limit : faintest Hp magnitude kept; None = every star in the file.
-        Asking for fainter stars than the file holds is an error.
+    mag_limit : faintest Hp magnitude kept; None = every star in the file,
+        with ``follow_field`` set. Asking for fainter stars than the file
+        holds is an error.
 
     Raises
     ------
@@ -224,6 +245,7 @@ def load_catalogue(path: str | Path | None = None, epoch_year: float | None = No
     data, digest = _read_checked(path)
     arrays = _read_arrays(path, data)
     file_limit = float(arrays["mag_limit"])
+    follow_field = mag_limit is None
     if mag_limit is None:
         mag_limit = file_limit
     elif not math.isfinite(mag_limit):
@@ -244,4 +266,5 @@ def load_catalogue(path: str | Path | None = None, epoch_year: float | None = No
               "mag": arrays["hp_mag"][:n], "bv": arrays["bv_mag"][:n]}
     for array in fields.values():
         array.flags.writeable = False
-    return Catalogue(**fields, epoch_year=epoch, mag_limit=float(mag_limit), sha256=digest)
+    return Catalogue(**fields, epoch_year=epoch, mag_limit=float(mag_limit), sha256=digest,
+                     path=str(path), follow_field=follow_field)

@@ -5,8 +5,10 @@ common)`` (adding its parser with ``common`` as a parent and
 ``set_defaults(func=...)``) and a function ``func(args, cfg) -> int`` that
 receives the parsed arguments and the validated configuration.
 
-Errors a user can fix (a bad config, a missing file) print one line to
-stderr and exit with status 2; no traceback.
+Errors a user can fix (:class:`tracker.errors.UserError`: a bad config, a
+missing or corrupt catalogue, an unreadable file, a wrong argument; and the
+operating system's refusals, such as a missing file or a folder that cannot
+be written) print one line to stderr and exit with status 2; no traceback.
 """
 
 from __future__ import annotations
@@ -14,11 +16,17 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import platform
 import sys
 
-from tracker.config import ConfigError, load_config, render_markdown_table, render_yaml
+import cv2
+import numpy as np
 
-__all__ = ["main", "UserError"]
+from tracker import __version__
+from tracker.config import load_config, render_markdown_table, render_yaml
+from tracker.errors import UserError
+
+__all__ = ["main", "UserError", "build_parser"]
 
 # Subcommand modules, in the order `tracker --help` lists them.
 COMMAND_MODULES = (
@@ -32,12 +40,21 @@ COMMAND_MODULES = (
     "tracker.commands.selftest",
     "tracker.commands.monitor",
     "tracker.commands.calibrate",
+    "tracker.commands.database",
     "tracker.commands.validate",
 )
 
 
-class UserError(Exception):
-    """An error the user can fix; printed as one line, exit status 2."""
+def version_text() -> str:
+    """What ``tracker --version`` prints: this program and what it runs on."""
+    return (f"tracker {__version__} (Python {platform.python_version()}, numpy "
+            f"{np.__version__}, OpenCV {cv2.__version__})")
+
+
+def _os_error_text(exc: OSError) -> str:
+    """One line for an error of the operating system: the path and what went wrong."""
+    what = exc.strerror or str(exc)
+    return f"{exc.filename}: {what}" if exc.filename else what
 
 
 def _config_command(args: argparse.Namespace, cfg) -> int:
@@ -57,6 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="tracker", description="Star tracker: detect, identify, solve attitude, "
                                     "report over a UART.")
+    parser.add_argument("--version", action="version", version=version_text())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     p = sub.add_parser("config", parents=[common], help="print the effective configuration")
     p.add_argument("--bare", action="store_true", help="without the comments")
@@ -76,8 +94,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = load_config(args.config)
         return int(args.func(args, cfg) or 0)
-    except (ConfigError, UserError, FileNotFoundError) as exc:
+    except UserError as exc:
         print(f"tracker {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"tracker {args.command}: {_os_error_text(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import reprlib
 import types
 import typing
 from dataclasses import dataclass
@@ -26,10 +27,15 @@ from typing import Any
 
 import yaml
 
-__all__ = ["ConfigError", "Config", "knob", "load_config", "render_yaml", "config_checksum"]
+from tracker.errors import UserError
+from tracker.regular_file import FileRefused, read_regular_file
+from tracker.yaml_bounded import YamlError, parse_yaml
+
+__all__ = ["ConfigError", "Config", "knob", "load_config", "render_yaml", "config_checksum",
+           "check_config", "MAX_SENSOR_PIXELS", "MAX_CONFIG_BYTES"]
 
 
-class ConfigError(ValueError):
+class ConfigError(UserError, ValueError):
     """A configuration file that cannot be used; the message is one line."""
 
 
@@ -69,20 +75,25 @@ class CameraConfig:
 class CatalogueConfig:
     """The bundled Hipparcos-derived star list (tracker.catalogue).
 
-    mag_limit 7.5 keeps 23,270 stars: at least 19 (95 % of pointings: 31)
-    in the smallest field, 11 x 8.9 deg with the 25 mm lens, and it covers
-    the stars solved in the real test frames (Hp to ~7.5); the bundled file
-    holds Hp <= 8.0 for narrower fields (catalogue/README.md).
+    The bundled file holds the 78,352 stars with Hp <= 9.0. With mag_limit
+    null the solver takes as many as the field needs (tracker/data/README.md):
+    about 150 stars in an average frame, never fewer than its pattern
+    database uses; a number makes that the limit for everything.
     """
 
     path: str | None = knob(None, "catalogue file (with <file>.sha256 beside it); "
-                            "null = the bundled catalogue/stars.npz")
+                            "null = the bundled one (tracker/data/stars.npz)")
     epoch_year: float | None = knob(
-        None, "observation epoch for proper motion, decimal Julian year; null = now", "yr",
-        min=1900.0, max=2200.0)
-    mag_limit: float = knob(7.5, "faintest Hipparcos Hp magnitude used; at most the "
-                            "file's own limit (8.0 for the bundled file)", "mag",
-                            min=-2.0, max=12.5)
+        None, "observation epoch for proper motion when frames carry no absolute time, "
+        "decimal Julian year; null = now (system clock); a frame's absolute time (TIME_SYNC, "
+        "a replay's utc) sets the epoch instead", "yr", min=1900.0, max=2200.0)
+    epoch_step_years: float = knob(
+        0.01, "re-propagate the catalogue when a frame's absolute time is further than this "
+        "from its epoch (the fastest star, 8.67 arcsec/yr, is then off by at most 0.09 "
+        "arcsec; the next frame is solved lost in space)", "yr", min=0.0001, max=100.0)
+    mag_limit: float | None = knob(None, "faintest Hipparcos Hp magnitude used; null = what "
+                                   "the camera's field needs; at most the file's own limit "
+                                   "(9.0 for the bundled file)", "mag", min=-2.0, max=12.5)
 
 
 @dataclass(frozen=True)
@@ -288,16 +299,33 @@ class IdentifyConfig:
     """Star identification (tracker.identify)."""
 
     enabled: bool = knob(True, "identify stars and solve attitude")
-    database: str | None = knob(None, "pattern database file; null = the catalogue/ "
-                                "patterns_*.npz whose field-of-view range holds the "
-                                "camera's", "path")
-    pattern_stars: int = knob(12, "brightest image stars whose triangles lost-in-space tries",
-                              "stars", min=3, max=64)
+    database: str | None = knob(None, "pattern database file; null = one that fits the "
+                                "camera, from the package's data folder or the cache folder, "
+                                "built there on first use", "path")
+    cache_dir: str | None = knob(None, "folder of built pattern databases; null = "
+                                 "$STATE_DIRECTORY (the systemd unit's StateDirectory), else "
+                                 "$XDG_CACHE_HOME/startracker, else ~/.cache/startracker",
+                                 "path")
+    focal_tolerance: float = knob(0.06, "lost in space finds the focal length within this "
+                                  "fraction of camera.focal_length_mm (0.06 covers a label "
+                                  "up to 5 % off either way)", "fraction", min=0.0, max=0.3)
+    focal_search: float = knob(0.3, "when lost in space fails, search this wider fraction to "
+                               "say which focal length the stars fit (the frame stays "
+                               "failed); 0 = off", "fraction", min=0.0, max=0.5)
+    distortion_px: float = knob(3.0, "prior on the radial distortion (k1) to fit: one sigma "
+                                "of its displacement at the image corner", "px", min=0.0,
+                                max=1000.0)
+    lens_time_constant_s: float = knob(600.0, "memory of the slow filter of focal length "
+                                       "and k1 over solved frames (they drift with "
+                                       "temperature); 0 = no forgetting", "s", min=0.0,
+                                       max=1e7)
+    pattern_stars: int = knob(12, "brightest image stars whose four-star patterns lost in "
+                              "space tries", "stars", min=4, max=64)
     verify_stars: int = knob(40, "brightest image stars checked against a hypothesis",
-                             "stars", min=4, max=1024)
-    pair_tolerance_px: float = knob(1.5, "half-width of the band of catalogue separations "
-                                    "each image separation selects", "px", min=0.01,
-                                    max=100.0)
+                             "stars", min=5, max=1024)
+    pattern_tolerance_px: float = knob(2.0, "largest error expected on the length of a "
+                                       "pattern's edge (centroid errors plus unmodelled "
+                                       "distortion)", "px", min=0.01, max=100.0)
     match_radius_px: float = knob(1.0, "an image star matches a predicted catalogue star "
                                   "within this distance; the chance of a false match grows "
                                   "with its square, so keep it a few times the centroid "
@@ -306,13 +334,14 @@ class IdentifyConfig:
                                  "is below this (per frame; tracker.identify.verify)",
                                  "probability", min=1e-30, max=0.5)
     min_matched: int = knob(5, "fewest matched stars for an accepted attitude", "stars",
-                            min=4, max=1000)
-    max_triads: int = knob(400, "lost in space: most image triangles tried per frame",
-                           "triangles", min=1, max=100000)
-    max_lis_ms: float = knob(250.0, "lost in space: give up after this long", "ms",
-                             min=1.0, max=60000.0)
-    min_separation_px: float = knob(8.0, "triangle stars closer together than this are "
-                                    "not used", "px", min=0.0, max=10000.0)
+                            min=5, max=1000)
+    max_patterns: int = knob(500, "lost in space: most image patterns looked up per frame "
+                             "(a work budget: the same stars give the same answer on any "
+                             "machine)", "patterns", min=1, max=100000)
+    max_hypotheses: int = knob(500, "lost in space: most hypotheses verified per frame",
+                               "hypotheses", min=1, max=100000)
+    min_separation_px: float = knob(8.0, "patterns with two stars closer together than "
+                                    "this are not tried", "px", min=0.0, max=10000.0)
     duplicate_px: float = knob(0.5, "centroids closer than this are one star (the fainter "
                                "is dropped)", "px", min=0.0, max=100.0)
     centroid_sigma_px: float = knob(0.25, "prior centroid noise per axis, blended with the "
@@ -351,12 +380,15 @@ class LinkConfig:
                               min=0, max=1020)
     queue_attitude: int = knob(4, "ATTITUDE packets waiting to be sent; when full the "
                                "oldest is dropped", "packets", min=1, max=1024)
+    queue_replies: int = knob(256, "ACK/NACK replies waiting; a burst of up to this many "
+                              "commands gets every reply, a longer flood sheds the oldest",
+                              "packets", min=1, max=65536)
     queue_centroids: int = knob(8, "CENTROIDS packets waiting; oldest dropped when full",
                                 "packets", min=1, max=1024)
     queue_status: int = knob(2, "STATUS packets waiting; oldest dropped when full",
                              "packets", min=1, max=1024)
-    max_age_ms: float = knob(500.0, "a queued packet older than this is dropped unsent",
-                             "ms", min=1.0, max=60000.0)
+    max_age_ms: float = knob(500.0, "a queued telemetry packet older than this is dropped "
+                             "unsent (replies are not)", "ms", min=1.0, max=60000.0)
     write_timeout_s: float = knob(0.5, "a write to the port that takes longer counts as a "
                                   "port error (the port is reopened)", "s", min=0.01,
                                   max=60.0)
@@ -377,10 +409,11 @@ class CaptureConfig:
     loop: bool = knob(False, "replay: start again after the last file")
     fps: float = knob(0.0, "frames per second; 0 = replay as fast as possible, live: the "
                       "longest frame the exposure allows", "Hz", min=0.0, max=1000.0)
-    device: str = knob("0", "live: picamera2 camera number, or a V4L2 node (/dev/videoN or "
-                       "its number)")
-    raw_format: str = knob("R16", "picamera2: raw format asked for; the granted one is "
-                           "checked and *_PISP_COMP* (lossy) refused",
+    device: str = knob("0", "live: picamera2 camera number; v4l2: which rp1-cfe with a sensor "
+                       "(its number among them, or /dev/mediaN)")
+    raw_format: str = knob("R16", "raw format asked for; picamera2: the granted one is "
+                           "checked and *_PISP_COMP* (lossy) refused; v4l2: R16 = Y16 (the CFE "
+                           "unpacks), R10_CSI2P = Y10P, R8 = GREY",
                            choices=("R16", "R10", "R8", "R10_CSI2P", "R8_CSI2P"))
     raw_shift: int = knob(6, "right shift applied to 16-bit raw words (6: 10-bit data in the "
                           "high bits of R16, unverified on the Pi: `tracker selftest` says "
@@ -394,18 +427,22 @@ class CaptureConfig:
     gain: float = knob(4.0, "starting analogue gain", "x", min=1.0, max=64.0)
     gain_max: float = knob(16.0, "exposure control: highest analogue gain", "x",
                            min=1.0, max=64.0)
+    gain_code_per_x: float = knob(100.0, "v4l2: the sensor's ANALOGUE_GAIN control units "
+                                  "per 1x gain (arducam-pivariety: 100, as its libcamera "
+                                  "helper)", "code", min=1.0, max=1e6)
     auto_exposure: bool = knob(True, "adjust exposure and gain to keep stars detectable "
                                "and unsaturated")
     target_peak: float = knob(0.5, "exposure control: wanted brightest-star peak as a "
                               "fraction of full scale", "", min=0.05, max=0.95)
     buffer_count: int = knob(4, "live: camera buffers queued", min=2, max=16)
-    timeout_s: float = knob(2.0, "live: longest wait for a frame before the camera counts "
-                            "as timed out", "s", min=0.05, max=60.0)
+    timeout_s: float = knob(2.0, "live: a frame later than its period plus this is lost "
+                            "(camera_timeout); three in a row and the camera is reopened",
+                            "s", min=0.05, max=60.0)
 
 
 @dataclass(frozen=True)
 class ServiceConfig:
-    """The daemon loop (tracker.service)."""
+    """The daemon loop (tracker.daemon)."""
 
     log_level: str = knob("INFO", "logging threshold",
                           choices=("DEBUG", "INFO", "WARNING", "ERROR"))
@@ -417,16 +454,34 @@ class ServiceConfig:
                                   "link.status_rate_hz)", "s", min=0.05, max=3600.0)
     retry_initial_s: float = knob(0.5, "first wait before reopening a failed camera", "s",
                                   min=0.01, max=60.0)
-    retry_max_s: float = knob(8.0, "longest wait between camera reopen attempts (doubling "
-                              "backoff)", "s", min=0.01, max=600.0)
-    track_after: int = knob(2, "consecutive solved frames before acquiring becomes "
+    retry_max_s: float = knob(1.0, "longest wait between camera reopen attempts (doubling "
+                              "backoff); a camera that comes back is streaming within "
+                              "about this long", "s", min=0.01, max=600.0)
+    track_after: int = knob(2, "consecutive solved frames before lost_in_space becomes "
                             "tracking", min=1, max=1000)
     lost_after: int = knob(3, "consecutive unsolved frames before tracking falls back to "
-                           "acquiring", min=1, max=1000)
-    fault_after: int = knob(20, "consecutive failed frames (unreadable, stage error, no "
-                            "camera) before the state is fault", min=1, max=100000)
-    start_state: str = knob("acquiring", "state at start; standby waits for the flight "
-                            "computer's command", choices=("standby", "acquiring"))
+                           "lost_in_space", min=1, max=1000)
+    fault_after: int = knob(20, "consecutive failed frames (unreadable, late, stage error) "
+                            "before the mode is fault (no camera: at once)", min=1,
+                            max=100000)
+    start_state: str = knob("lost_in_space", "mode at start; standby waits for the flight "
+                            "computer's SET_MODE", choices=("standby", "lost_in_space"))
+
+
+@dataclass(frozen=True)
+class TimeConfig:
+    """Absolute time and the observer's velocity (tracker.daemon.timebase)."""
+
+    system_clock: str = knob(
+        "never", "use the tracker's own clock (UTC, leap seconds from the table) as "
+        "absolute time until the flight computer's TIME_SYNC: never; synchronised (while "
+        "the kernel says NTP or PTP keeps it within 16 s: adjtimex, as timedatectl); always "
+        "(a clock set by other means, e.g. a battery-backed RTC); tracker record writes utc "
+        "under the same rule", choices=("never", "synchronised", "always"))
+    velocity_max_age_s: float = knob(
+        10.0, "a SET_VELOCITY further than this from a frame's time is stale and not "
+        "applied (in low Earth orbit the velocity turns 0.066 deg/s: 0.006 arcsec of "
+        "aberration error per second of age)", "s", min=0.001, max=86400.0)
 
 
 @dataclass(frozen=True)
@@ -441,6 +496,7 @@ class Config:
     link: LinkConfig = LinkConfig()
     capture: CaptureConfig = CaptureConfig()
     service: ServiceConfig = ServiceConfig()
+    time: TimeConfig = TimeConfig()
 
 
 # --------------------------------------------------------------------------
@@ -520,8 +576,8 @@ def _build_section(cls: type, data: Any, where: str, source: str) -> Any:
     for key, value in data.items():
         if key not in fields:
             known = ", ".join(sorted(fields))
-            raise ConfigError(f"{source}: {where}.{key}: found an unknown key, expected one of: "
-                              f"{known}")
+            raise ConfigError(f"{source}: {where}.{_name(key)}: found an unknown key, expected "
+                              f"one of: {known}")
         meta = dict(fields[key].metadata)
         try:
             values[key] = _coerce(value, hints[key], meta)
@@ -531,11 +587,23 @@ def _build_section(cls: type, data: Any, where: str, source: str) -> Any:
     return cls(**values)
 
 
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxdict, _REPR.maxtuple = 2, 4, 4, 4
+_REPR.maxstring, _REPR.maxlong, _REPR.maxother = 50, 30, 50
+
+
 def _show(value: Any) -> str:
-    text = repr(value)
+    """A value as the message shows it: its repr cut short (never the whole of a huge one)."""
+    text = _REPR.repr(value)
     if len(text) > 60:
         text = text[:57] + "..."
     return f"{text} ({type(value).__name__})"
+
+
+def _name(key: Any) -> str:
+    """A key as the message shows it."""
+    text = str(key) if isinstance(key, str) else _REPR.repr(key)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def config_from_dict(data: Any, source: str = "<config>") -> Config:
@@ -550,33 +618,86 @@ def config_from_dict(data: Any, source: str = "<config>") -> Config:
     for name, value in data.items():
         if name not in hints:
             known = ", ".join(f.name for f in dataclasses.fields(Config))
-            raise ConfigError(f"{source}: {name}: found an unknown section, expected one of: "
-                              f"{known}")
+            raise ConfigError(f"{source}: {_name(name)}: found an unknown section, expected "
+                              f"one of: {known}")
         sections[name] = _build_section(hints[name], value, name, source)
-    return Config(**sections)
+    return check_config(Config(**sections), source)
 
 
 def load_config(path: str | Path | None) -> Config:
-    """Load and validate a YAML configuration file; None gives the defaults."""
+    """Load and validate a YAML configuration file; None gives the defaults.
+
+    The file must be a regular file of at most :data:`MAX_CONFIG_BYTES`; its
+    YAML is read within the bounds of :mod:`tracker.yaml_bounded` (YAML 1.2
+    scalars, duplicate keys refused), then every key is checked against its
+    declaration and the keys against each other (:func:`check_config`).
+    """
     if path is None:
         return Config()
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the file: {exc.strerror or exc}") from None
+        text = read_regular_file(path, MAX_CONFIG_BYTES).decode("utf-8")
+    except FileRefused as exc:
+        raise ConfigError(f"{path}: cannot read the file: {exc}") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: found bytes that are not UTF-8, expected a YAML text "
                           "file") from None
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "somewhere"
-        problem = getattr(exc, "problem", None) or "not valid YAML"
-        raise ConfigError(f"{path}: (YAML syntax) at {where}: found {problem}, expected "
-                          "valid YAML") from None
+        data = parse_yaml(text)
+    except YamlError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
     return config_from_dict(data, str(path))
+
+
+# The largest configuration file read, in bytes (a full one with comments is ~20 KB).
+MAX_CONFIG_BYTES = 1 << 20
+
+# The largest sensor, width x height in pixels (2**25, e.g. 6144 x 5461): the
+# default detector needs about 40 bytes per pixel (1.3 GB here), and image
+# files are decoded only up to the configured camera's size.
+MAX_SENSOR_PIXELS = 1 << 25
+
+# Keys whose values must not decrease along each chain: a configuration where
+# they do cannot work (an empty exposure range, a backoff that starts above its
+# ceiling, a match count that the stars checked can never reach).
+ORDERED_KEYS = (
+    ("capture", ("exposure_min_us", "exposure_us", "exposure_max_us")),
+    ("capture", ("gain", "gain_max")),
+    ("service", ("retry_initial_s", "retry_max_s")),
+    ("link", ("reopen_backoff_s", "reopen_backoff_max_s")),
+    ("identify", ("pattern_stars", "verify_stars")),
+    ("identify", ("min_matched", "verify_stars")),
+)
+
+
+def check_config(cfg: Config, source: str = "<config>") -> Config:
+    """The checks across keys: :data:`ORDERED_KEYS`, the sensor size and principal point.
+
+    Returns ``cfg``; raises :class:`ConfigError` naming the first key at fault.
+    """
+    for section, chain in ORDERED_KEYS:
+        values = getattr(cfg, section)
+        # the widest pair first: min > max is named as such, not as min > start
+        pairs = sorted(((i, j) for i in range(len(chain)) for j in range(i + 1, len(chain))),
+                       key=lambda ij: ij[0] - ij[1])
+        for i, j in pairs:
+            low, high = chain[i], chain[j]
+            a, b = getattr(values, low), getattr(values, high)
+            if a > b:
+                raise ConfigError(
+                    f"{source}: {section}.{low}: found {a:g}, more than {section}.{high} "
+                    f"({b:g}), expected {low} <= {high}")
+    cam = cfg.camera
+    if cam.width * cam.height > MAX_SENSOR_PIXELS:
+        raise ConfigError(
+            f"{source}: camera.width x camera.height: found {cam.width} x {cam.height} = "
+            f"{cam.width * cam.height:,} pixels, expected at most {MAX_SENSOR_PIXELS:,}")
+    for key, size in (("cx", cam.width), ("cy", cam.height)):
+        value = getattr(cam, key)
+        if value is not None and not -0.5 <= value <= size - 0.5:
+            raise ConfigError(f"{source}: camera.{key}: found {value:g}, expected a pixel "
+                              f"inside the image, in [-0.5, {size - 0.5:g}]")
+    return cfg
 
 
 # --------------------------------------------------------------------------

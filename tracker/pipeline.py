@@ -1,27 +1,49 @@
 """One frame through the stages: detect -> identify -> attitude.
 
-Shared by ``tracker replay`` and the service so both compute the same thing.
-A detector is made once per (shape, bit depth) and reused; the solver (made
-on first use: it loads the catalogue and the pattern database) keeps its
-tracking state between frames. Identification runs only on frames whose
-size matches the configured camera, since the camera model is what maps
-pixels to directions.
+Shared by ``tracker replay``, :func:`tracker.solve` and the service so all
+compute the same thing. A detector is made per (shape, bit depth) and reused;
+the :data:`DETECTORS_KEPT` most recently used are kept (a detector holds
+buffers of about 40 bytes per pixel, so frames of ever new sizes must not
+keep theirs). The solver (made on first use: it loads the catalogue and the
+pattern database) keeps its tracking state between frames. Colour frames are
+converted to grey as replay converts them (tracker.frame_array).
+Identification runs only on frames whose size matches the configured camera,
+since the camera model is what maps pixels to directions.
+
+Each frame may come with its :class:`~tracker.astrometry.observer.Observer`
+(absolute time, the observer's velocity), which the solver uses to correct
+aberration. Its time also sets the proper-motion epoch: when it is further
+than ``catalogue.epoch_step_years`` from the loaded catalogue's epoch, the
+catalogue is propagated to it anew and the solver rebuilt (its tracking
+state is lost: that frame is solved lost in space). Without an absolute
+time the catalogue stays at ``catalogue.epoch_year`` (null: the time it was
+loaded).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 
+from tracker.astrometry.observer import Observer
 from tracker.camera import CameraModel
 from tracker.catalogue import Catalogue
 from tracker.config import Config
 from tracker.detect import Detections, Detector, make_detector
+from tracker.frame_array import to_grey
 from tracker.identify import Solution, Solver, make_solver
 
-__all__ = ["Pipeline", "FrameResult"]
+__all__ = ["Pipeline", "FrameResult", "DETECTORS_KEPT"]
+
+log = logging.getLogger(__name__)
+
+# Detectors kept for frame sizes seen lately: the camera's and one other.
+DETECTORS_KEPT = 2
 
 
 @dataclass
@@ -30,6 +52,8 @@ class FrameResult:
 
     ``solution`` is None when identification is off or was not attempted;
     ``solve_reason`` then says why (``"disabled"``, ``"frame_size"``).
+    ``observer`` is the context the frame was processed with (what the
+    solver corrected: ``observer.corrections``).
     """
 
     detections: Detections
@@ -37,6 +61,7 @@ class FrameResult:
     time_ms: float
     stages_ms: dict
     solve_reason: str | None = None
+    observer: Observer = Observer()
 
 
 class Pipeline:
@@ -45,32 +70,82 @@ class Pipeline:
     def __init__(self, cfg: Config):
         self.cfg = cfg
         self.camera = CameraModel.from_config(cfg.camera)
-        self._detectors: dict[tuple, Detector] = {}
+        self._detectors: OrderedDict[tuple, Detector] = OrderedDict()
         self._solver: Solver | None = None
+        self._catalogue: Catalogue | None = None
 
     def detector_for(self, shape: tuple[int, int], bit_depth: int) -> Detector:
-        """The (cached) detector for frames of this shape and depth."""
+        """The detector for frames of this shape and depth (one of the last used, or new)."""
         key = (tuple(shape), bit_depth)
-        if key not in self._detectors:
-            self._detectors[key] = make_detector(self.cfg.detect, key[0], bit_depth)
-        return self._detectors[key]
+        detector = self._detectors.pop(key, None)
+        if detector is None:
+            while len(self._detectors) >= DETECTORS_KEPT:
+                self._detectors.popitem(last=False)     # free before allocating anew
+            detector = make_detector(self.cfg.detect, key[0], bit_depth)
+        self._detectors[key] = detector
+        return detector
+
+    @property
+    def catalogue(self) -> Catalogue:
+        """The configured catalogue, loaded on first use (raises CatalogueError)."""
+        if self._catalogue is None:
+            self._catalogue = Catalogue.from_config(self.cfg.catalogue)
+        return self._catalogue
 
     @property
     def solver(self) -> Solver:
         """The solver, made on first use (raises the database's ConfigError)."""
         if self._solver is None:
-            catalogue = Catalogue.from_config(self.cfg.catalogue)
-            self._solver = make_solver(self.cfg.identify, self.camera, catalogue)
+            self._solver = make_solver(self.cfg.identify, self.camera, self.catalogue)
         return self._solver
 
-    def reset(self) -> None:
-        """Forget the tracking state: the next frame is solved lost in space."""
-        if self._solver is not None:
-            self._solver.reset()
+    def reset(self, lens: bool = False) -> None:
+        """Forget the tracking state: the next frame is solved lost in space.
 
-    def process(self, image: np.ndarray, bit_depth: int, t_ns: int) -> FrameResult:
-        """Detect, identify and solve one frame; never raises on bad pixels."""
+        ``lens`` also forgets the solver's running focal-length estimate
+        (tracker.identify.solver.Solver.reset).
+        """
+        if self._solver is not None:
+            self._solver.reset(lens=lens)
+
+    def solve_stars(self, stars, t_ns: int, observer: Observer | None = None) -> Solution:
+        """Identify stars and solve the attitude, the catalogue at the observer's epoch.
+
+        ``stars``: STAR_DTYPE rows (x, y, flux) in the camera's pixels;
+        ``t_ns`` and ``observer`` as in :meth:`process`.
+        """
+        observer = observer or Observer()
+        self._follow_epoch(observer)
+        return self.solver.solve(stars, t_ns, observer)
+
+    def _follow_epoch(self, observer: Observer) -> None:
+        """Propagate the catalogue to the observer's epoch if it moved too far (module doc)."""
+        epoch = observer.epoch_year
+        loaded = self._catalogue
+        if epoch is None or (loaded is not None and abs(epoch - loaded.epoch_year)
+                             <= self.cfg.catalogue.epoch_step_years):
+            return
+        if loaded is not None:
+            log.info("catalogue propagated from epoch %.4f to %.4f, the frames' time "
+                     "(tracking starts again)", loaded.epoch_year, epoch)
+        self._catalogue = Catalogue.from_config(dataclasses.replace(self.cfg.catalogue,
+                                                                    epoch_year=epoch))
+        self._solver = None
+
+    def process(self, image: np.ndarray, bit_depth: int, t_ns: int,
+                observer: Observer | None = None) -> FrameResult:
+        """Detect, identify and solve one frame; never raises on bad pixels.
+
+        ``image`` is 2-D (or colour: rows x cols x 3 or 4, BGR(A), made grey
+        first), uint8 or uint16 holding ``bit_depth``-bit values; ``t_ns`` the
+        exposure mid-point (monotonic clock), used by tracking; ``observer``
+        the frame's absolute time and velocity (None: unknown, no aberration
+        corrected).
+        """
+        observer = observer or Observer()
         t0 = time.perf_counter_ns()
+        if isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] in (1, 3, 4):
+            image = to_grey(image)
         shape = image.shape[:2] if image.ndim >= 2 else (0, 0)
         detections = self.detector_for(shape, bit_depth).detect(image)
         stages = {f"detect.{k}": v for k, v in detections.stages_ms.items()}
@@ -80,7 +155,7 @@ class Pipeline:
         elif tuple(shape) != (self.camera.height, self.camera.width):
             reason = "frame_size"
         else:
-            solution = self.solver.solve(detections.stars, t_ns)
+            solution = self.solve_stars(detections.stars, t_ns, observer)
             stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})
         elapsed = (time.perf_counter_ns() - t0) / 1e6
-        return FrameResult(detections, solution, elapsed, stages, reason)
+        return FrameResult(detections, solution, elapsed, stages, reason, observer)

@@ -34,8 +34,8 @@ static size_t find_asm(const uint8_t *p, size_t len, size_t from)
     return (size_t)-1;
 }
 
-/* Consume what the buffer holds; keep an unfinished frame or partial ASM. */
-static void scan(st_decoder_t *d, st_frame_cb cb, void *user)
+/* Consume what the buffer holds; keep an unfinished packet or partial ASM. */
+static void scan(st_decoder_t *d, st_packet_cb cb, void *user)
 {
     size_t pos = 0;
     for (;;) {
@@ -75,12 +75,12 @@ static void scan(st_decoder_t *d, st_frame_cb cb, void *user)
             continue;
         }
         {
-            st_frame_t f;
+            st_packet_t f;
             f.apid = w0 & 0x7FFu;
             f.seq = w1 & 0x3FFFu;
             f.payload = d->buf + i + 10;
             f.len = (size_t)n;
-            d->counters.frames++;
+            d->counters.packets++;
             cb(&f, user);
         }
         pos = end;
@@ -89,7 +89,7 @@ static void scan(st_decoder_t *d, st_frame_cb cb, void *user)
     d->len -= pos;
 }
 
-void st_decoder_feed(st_decoder_t *d, const uint8_t *data, size_t n, st_frame_cb cb,
+void st_decoder_feed(st_decoder_t *d, const uint8_t *data, size_t n, st_packet_cb cb,
                      void *user)
 {
     while (n > 0) {
@@ -104,7 +104,7 @@ void st_decoder_feed(st_decoder_t *d, const uint8_t *data, size_t n, st_frame_cb
     }
 }
 
-size_t st_build_frame(uint8_t *out, size_t cap, unsigned apid, unsigned type, unsigned seq,
+size_t st_build_packet(uint8_t *out, size_t cap, unsigned apid, unsigned type, unsigned seq,
                       const uint8_t *payload, size_t n)
 {
     if (n + ST_OVERHEAD > cap || n > 0xFFFDu)

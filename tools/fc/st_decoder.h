@@ -1,7 +1,7 @@
 /* st_decoder.h: star tracker serial protocol, framing layer (C99, no allocation).
  *
  * Streaming decoder: feed bytes in any chunking; it calls back once per
- * intact frame (ASM, plausible CCSDS header, good CRC-16/CCITT-FALSE) and
+ * intact packet (ASM, plausible CCSDS header, good CRC-16/CCITT-FALSE) and
  * counts what it dropped. Same algorithm as docs/protocol.md section 3.1.
  * Message payloads are parsed with st_protocol.h.
  */
@@ -21,15 +21,15 @@ typedef struct {
     unsigned seq;           /* 14-bit sequence count */
     const uint8_t *payload; /* valid during the callback only */
     size_t len;             /* payload bytes */
-} st_frame_t;
+} st_packet_t;
 
-typedef void (*st_frame_cb)(const st_frame_t *frame, void *user);
+typedef void (*st_packet_cb)(const st_packet_t *packet, void *user);
 
 typedef struct {
-    unsigned long frames;        /* intact frames delivered */
+    unsigned long packets;       /* intact packets delivered */
     unsigned long bad_header;    /* ASM followed by an implausible header */
     unsigned long bad_crc;       /* plausible header, CRC wrong */
-    unsigned long bytes_dropped; /* bytes not in a delivered frame */
+    unsigned long bytes_dropped; /* bytes not in a delivered packet */
 } st_counters_t;
 
 typedef struct {
@@ -46,11 +46,12 @@ uint16_t st_crc16(const uint8_t *p, size_t n);
 /* type: 0 to receive telemetry (the FC), 1 to receive telecommands. */
 void st_decoder_init(st_decoder_t *d, unsigned type);
 
-void st_decoder_feed(st_decoder_t *d, const uint8_t *data, size_t n, st_frame_cb cb,
+void st_decoder_feed(st_decoder_t *d, const uint8_t *data, size_t n, st_packet_cb cb,
                      void *user);
 
-/* Build a frame into out (cap bytes). Returns its length, or 0 if it does not fit. */
-size_t st_build_frame(uint8_t *out, size_t cap, unsigned apid, unsigned type, unsigned seq,
+/* Build a packet (ASM, header, payload, CRC) into out (cap bytes). Returns its length,
+ * or 0 if it does not fit. */
+size_t st_build_packet(uint8_t *out, size_t cap, unsigned apid, unsigned type, unsigned seq,
                       const uint8_t *payload, size_t n);
 
 #endif /* ST_DECODER_H */

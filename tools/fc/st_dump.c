@@ -15,7 +15,7 @@ typedef struct {
     unsigned long unknown_id, wrong_length, out_of_range;
 } rejects_t;
 
-static void on_frame(const st_frame_t *f, void *user)
+static void on_packet(const st_packet_t *f, void *user)
 {
     rejects_t *r = (rejects_t *)user;
     int rc;
@@ -40,9 +40,9 @@ int main(int argc, char **argv)
         want = sizeof chunk;
     st_decoder_init(&d, 0);
     while ((got = fread(chunk, 1, want, stdin)) > 0)
-        st_decoder_feed(&d, chunk, got, on_frame, &r);
-    printf("COUNTERS frames=%lu bad_header=%lu bad_crc=%lu unknown_id=%lu wrong_length=%lu "
-           "out_of_range=%lu\n", d.counters.frames, d.counters.bad_header, d.counters.bad_crc,
+        st_decoder_feed(&d, chunk, got, on_packet, &r);
+    printf("COUNTERS packets=%lu bad_header=%lu bad_crc=%lu unknown_id=%lu wrong_length=%lu "
+           "out_of_range=%lu\n", d.counters.packets, d.counters.bad_header, d.counters.bad_crc,
            r.unknown_id, r.wrong_length, r.out_of_range);
     return 0;
 }

@@ -14,7 +14,7 @@
 #define ST_ASM 0x1ACFFC1Du
 #define ST_OVERHEAD 12u /* ASM 4 + header 6 + CRC 2 */
 #define ST_MAX_PAYLOAD_TM 737u
-#define ST_MAX_PAYLOAD_TC 8u
+#define ST_MAX_PAYLOAD_TC 20u
 #define ST_MAX_STARS_PER_PACKET 40u
 
 enum st_msg_id {
@@ -30,6 +30,7 @@ enum st_msg_id {
     ST_ID_PING = 0x024, /* TC */
     ST_ID_REQUEST_STATUS = 0x025, /* TC */
     ST_ID_TIME_SYNC = 0x026, /* TC */
+    ST_ID_SET_VELOCITY = 0x027, /* TC */
 };
 
 enum st_mode {
@@ -54,13 +55,42 @@ enum st_attitude_flag {
     ST_ATT_VALID = 1,
     ST_ATT_RATE_VALID = 2,
     ST_ATT_TIME_SYNCED = 4,
-    ST_ATT_PREDICTED = 8,
+    ST_ATT_ANNUAL_ABERRATION = 8,
+    ST_ATT_OBSERVER_VELOCITY = 16,
+};
+
+/* STATUS.time_source: where the frames' absolute time comes from. */
+enum st_time_source {
+    ST_TIME_NONE = 0,
+    ST_TIME_TIME_SYNC = 1,
+    ST_TIME_SYSTEM_CLOCK = 2,
+    ST_TIME_RECORD = 3,
+};
+
+/* Bits of STATUS.corrections: what the solver corrects. */
+enum st_correction {
+    ST_CORR_ANNUAL_ABERRATION = 1,
+    ST_CORR_OBSERVER_VELOCITY = 2,
+    ST_CORR_VELOCITY_STALE = 4,
+};
+
+/* STATUS.last_error: the latest fault the tracker survived. */
+enum st_error_code {
+    ST_ERR_NONE = 0, /* no fault since the service started */
+    ST_ERR_FRAME_UNREADABLE = 1, /* a frame arrived broken (bad buffer, corrupt file); skipped */
+    ST_ERR_CAMERA_TIMEOUT = 2, /* no frame within the frame period + capture.timeout_s */
+    ST_ERR_CAMERA_LOST = 3, /* the camera is absent or failed; closed and reopened every service.retry_max_s at most */
+    ST_ERR_STAGE_ERROR = 4, /* detection or identification failed on a frame; that frame dropped */
+    ST_ERR_LINK_ERROR = 5, /* the serial port failed or would not open; reopened with backoff */
+    ST_ERR_RX_REJECT = 6, /* an FC packet was dropped or NACKed (header, CRC, id, length, range) */
+    ST_ERR_TX_DROP = 7, /* a telemetry packet or reply was shed (its queue full, or stale) */
+    ST_ERR_LINK_INTERNAL = 8, /* the link's own code failed while serving the FC; caught, the link goes on */
 };
 
 #define ST_ATTITUDE_SIZE 53u
 #define ST_CENTROIDS_SIZE 17u
 #define ST_CENTROIDS_ITEM_SIZE 18u
-#define ST_STATUS_SIZE 49u
+#define ST_STATUS_SIZE 51u
 #define ST_ACK_SIZE 13u
 #define ST_NACK_SIZE 13u
 #define ST_SET_MODE_SIZE 1u
@@ -70,6 +100,7 @@ enum st_attitude_flag {
 #define ST_PING_SIZE 0u
 #define ST_REQUEST_STATUS_SIZE 0u
 #define ST_TIME_SYNC_SIZE 8u
+#define ST_SET_VELOCITY_SIZE 20u
 
 static inline uint8_t st_get_u8(const uint8_t *p) { return p[0]; }
 static inline uint16_t st_get_u16(const uint8_t *p)
@@ -116,12 +147,12 @@ static inline void st_put_f32(uint8_t *p, float f)
 
 typedef struct {
     uint32_t frame_id; /* -: frame counter since start, wraps at 2^32 */
-    uint64_t t_ns; /* ns: exposure mid-time (tracker monotonic clock, or FC clock when TIME_SYNCED) */
+    uint64_t t_ns; /* ns: exposure mid-point: TAI ns since 1970 when TIME_SYNCED, else the tracker's monotonic clock (section 6) */
     float q_w; /* -: quaternion scalar part, >= 0; v_cam = R(q) v_icrs */
     float q_x; /* -: quaternion x */
     float q_y; /* -: quaternion y */
     float q_z; /* -: quaternion z */
-    float sigma_xy_arcsec; /* arcsec: 1-sigma cross-boresight error */
+    float sigma_cross_arcsec; /* arcsec: 1-sigma cross-boresight error */
     float sigma_roll_arcsec; /* arcsec: 1-sigma error about the boresight */
     float rate_x; /* deg/s: angular rate about camera +X; NaN unless RATE_VALID */
     float rate_y; /* deg/s: angular rate about camera +Y; NaN unless RATE_VALID */
@@ -141,7 +172,7 @@ typedef struct {
 
 typedef struct {
     uint32_t frame_id; /* -: frame counter since start, wraps at 2^32 */
-    uint64_t t_ns; /* ns: exposure mid-time (tracker monotonic clock, or FC clock when TIME_SYNCED) */
+    uint64_t t_ns; /* ns: exposure mid-point: TAI ns since 1970 when TIME_SYNCED, else the tracker's monotonic clock (section 6) */
     uint8_t part; /* -: index of this packet among the frame's parts, from 0 */
     uint8_t parts; /* -: number of parts for this frame */
     uint16_t total; /* stars: stars detected in the frame (may exceed those sent) */
@@ -156,14 +187,16 @@ typedef struct {
     float gain; /* x: analogue gain in use (factor) */
     float cpu_temp_c; /* degC: SoC temperature; NaN if unknown */
     uint8_t mode; /* -: Mode */
-    uint32_t frames; /* -: frames processed */
-    uint32_t capture_faults; /* -: frames lost or unreadable */
+    uint32_t frames; /* -: frames received from the camera (processed, skipped in STANDBY, or lost) */
+    uint32_t capture_faults; /* -: frames lost: unreadable, timed out, camera lost, or dropped by a failing stage */
     uint32_t solve_failures; /* -: frames with stars but no attitude */
-    uint32_t link_drops; /* -: packets dropped by the link queue */
+    uint32_t link_drops; /* -: telemetry packets and replies the link shed (queue full or stale) */
     uint16_t link_reopens; /* -: times the serial port was reopened */
-    uint32_t rx_rejects; /* -: FC frames dropped or NACKed */
-    uint16_t last_error; /* -: last error code, 0 = none (service defines codes) */
+    uint32_t rx_rejects; /* -: FC packets dropped or NACKed: implausible header, bad CRC, unknown id, wrong length, out of range */
+    uint16_t last_error; /* -: ErrorCode of the latest fault, 0 = none since start */
     uint32_t config_crc; /* -: checksum of the effective configuration */
+    uint8_t time_source; /* -: TimeSource of the latest frame's absolute time (before the first frame: what one would get now) */
+    uint8_t corrections; /* -: Correction bits the solver applies to the latest frame (before the first frame: what it would apply now) */
 } st_status_t;
 
 typedef struct {
@@ -185,11 +218,11 @@ typedef struct {
 } st_set_mode_t;
 
 typedef struct {
-    uint32_t exposure_us; /* us: exposure time */
+    uint32_t exposure_us; /* us: exposure time; clamped to the tracker's configured limits */
 } st_set_exposure_t;
 
 typedef struct {
-    float gain; /* x: analogue gain factor */
+    float gain; /* x: analogue gain factor; clamped to the tracker's configured limit */
 } st_set_gain_t;
 
 typedef struct {
@@ -206,8 +239,15 @@ typedef struct {
 } st_request_status_t;
 
 typedef struct {
-    uint64_t fc_time_ns; /* ns: FC time when the first ASM byte left its UART */
+    uint64_t fc_time_ns; /* ns: TAI ns since 1970-01-01T00:00:00 TAI when the first ASM byte left the FC's UART (1972 .. 2200) */
 } st_time_sync_t;
+
+typedef struct {
+    uint64_t t_ns; /* ns: TAI ns since 1970 at which the velocity holds (1972 .. 2200) */
+    float vx_km_s; /* km/s: along ICRS +X (RA 0, Dec 0) */
+    float vy_km_s; /* km/s: along ICRS +Y (RA 90 deg, Dec 0) */
+    float vz_km_s; /* km/s: along ICRS +Z (Dec +90 deg) */
+} st_set_velocity_t;
 
 /* Payload -> struct. Returns ST_OK, ST_WRONG_LENGTH or ST_OUT_OF_RANGE. */
 static inline int st_parse_attitude(const uint8_t *p, size_t n, st_attitude_t *m)
@@ -219,7 +259,7 @@ static inline int st_parse_attitude(const uint8_t *p, size_t n, st_attitude_t *m
     m->q_x = st_get_f32(p + 16);
     m->q_y = st_get_f32(p + 20);
     m->q_z = st_get_f32(p + 24);
-    m->sigma_xy_arcsec = st_get_f32(p + 28);
+    m->sigma_cross_arcsec = st_get_f32(p + 28);
     m->sigma_roll_arcsec = st_get_f32(p + 32);
     m->rate_x = st_get_f32(p + 36);
     m->rate_y = st_get_f32(p + 40);
@@ -257,7 +297,7 @@ static inline int st_parse_centroids(const uint8_t *p, size_t n, st_centroids_t 
 /* Payload -> struct. Returns ST_OK, ST_WRONG_LENGTH or ST_OUT_OF_RANGE. */
 static inline int st_parse_status(const uint8_t *p, size_t n, st_status_t *m)
 {
-    if (n != 49u) return ST_WRONG_LENGTH;
+    if (n != 51u) return ST_WRONG_LENGTH;
     m->uptime_s = st_get_u32(p + 0);
     m->frame_rate_hz = st_get_f32(p + 4);
     m->exposure_us = st_get_u32(p + 8);
@@ -272,6 +312,8 @@ static inline int st_parse_status(const uint8_t *p, size_t n, st_status_t *m)
     m->rx_rejects = st_get_u32(p + 39);
     m->last_error = st_get_u16(p + 43);
     m->config_crc = st_get_u32(p + 45);
+    m->time_source = st_get_u8(p + 49);
+    m->corrections = st_get_u8(p + 50);
     return ST_OK;
 }
 
@@ -352,7 +394,7 @@ static inline int st_parse_set_output(const uint8_t *p, size_t n, st_set_output_
     m->msg_id = st_get_u16(p + 0);
     m->rate_hz = st_get_f32(p + 2);
     if (m->msg_id != 1u && m->msg_id != 2u && m->msg_id != 3u) return ST_OUT_OF_RANGE;
-    if (!(m->rate_hz >= 0.0f && m->rate_hz <= 100.0f)) return ST_OUT_OF_RANGE;
+    if (!(m->rate_hz == 0.0f || (m->rate_hz >= 0.01f && m->rate_hz <= 100.0f))) return ST_OUT_OF_RANGE;
     return ST_OK;
 }
 
@@ -403,6 +445,7 @@ static inline int st_parse_time_sync(const uint8_t *p, size_t n, st_time_sync_t 
 {
     if (n != 8u) return ST_WRONG_LENGTH;
     m->fc_time_ns = st_get_u64(p + 0);
+    if (!(m->fc_time_ns >= 63072010000000000ull && m->fc_time_ns <= 7258118437000000000ull)) return ST_OUT_OF_RANGE;
     return ST_OK;
 }
 
@@ -411,6 +454,31 @@ static inline size_t st_pack_time_sync(uint8_t *p, const st_time_sync_t *m)
 {
     st_put_u64(p + 0, m->fc_time_ns);
     return 8u;
+}
+
+/* Payload -> struct. Returns ST_OK, ST_WRONG_LENGTH or ST_OUT_OF_RANGE. */
+static inline int st_parse_set_velocity(const uint8_t *p, size_t n, st_set_velocity_t *m)
+{
+    if (n != 20u) return ST_WRONG_LENGTH;
+    m->t_ns = st_get_u64(p + 0);
+    m->vx_km_s = st_get_f32(p + 8);
+    m->vy_km_s = st_get_f32(p + 12);
+    m->vz_km_s = st_get_f32(p + 16);
+    if (!(m->t_ns >= 63072010000000000ull && m->t_ns <= 7258118437000000000ull)) return ST_OUT_OF_RANGE;
+    if (!(m->vx_km_s >= -200.0f && m->vx_km_s <= 200.0f)) return ST_OUT_OF_RANGE;
+    if (!(m->vy_km_s >= -200.0f && m->vy_km_s <= 200.0f)) return ST_OUT_OF_RANGE;
+    if (!(m->vz_km_s >= -200.0f && m->vz_km_s <= 200.0f)) return ST_OUT_OF_RANGE;
+    return ST_OK;
+}
+
+/* Struct -> payload (p must hold 20 bytes). Returns the length. */
+static inline size_t st_pack_set_velocity(uint8_t *p, const st_set_velocity_t *m)
+{
+    st_put_u64(p + 0, m->t_ns);
+    st_put_f32(p + 8, m->vx_km_s);
+    st_put_f32(p + 12, m->vy_km_s);
+    st_put_f32(p + 16, m->vz_km_s);
+    return 20u;
 }
 
 #ifdef ST_WANT_PRINT /* optional text output, for tools and tests */
@@ -424,7 +492,7 @@ static inline void st_print_attitude(FILE *f, const st_attitude_t *m)
     fprintf(f, " q_x=%.9g", (double)m->q_x);
     fprintf(f, " q_y=%.9g", (double)m->q_y);
     fprintf(f, " q_z=%.9g", (double)m->q_z);
-    fprintf(f, " sigma_xy_arcsec=%.9g", (double)m->sigma_xy_arcsec);
+    fprintf(f, " sigma_cross_arcsec=%.9g", (double)m->sigma_cross_arcsec);
     fprintf(f, " sigma_roll_arcsec=%.9g", (double)m->sigma_roll_arcsec);
     fprintf(f, " rate_x=%.9g", (double)m->rate_x);
     fprintf(f, " rate_y=%.9g", (double)m->rate_y);
@@ -470,6 +538,8 @@ static inline void st_print_status(FILE *f, const st_status_t *m)
     fprintf(f, " rx_rejects=%lu", (unsigned long)m->rx_rejects);
     fprintf(f, " last_error=%u", (unsigned)m->last_error);
     fprintf(f, " config_crc=%lu", (unsigned long)m->config_crc);
+    fprintf(f, " time_source=%u", (unsigned)m->time_source);
+    fprintf(f, " corrections=%u", (unsigned)m->corrections);
 }
 
 static inline void st_print_ack(FILE *f, const st_ack_t *m)
@@ -522,6 +592,14 @@ static inline void st_print_request_status(FILE *f, const st_request_status_t *m
 static inline void st_print_time_sync(FILE *f, const st_time_sync_t *m)
 {
     fprintf(f, " fc_time_ns=%llu", (unsigned long long)m->fc_time_ns);
+}
+
+static inline void st_print_set_velocity(FILE *f, const st_set_velocity_t *m)
+{
+    fprintf(f, " t_ns=%llu", (unsigned long long)m->t_ns);
+    fprintf(f, " vx_km_s=%.9g", (double)m->vx_km_s);
+    fprintf(f, " vy_km_s=%.9g", (double)m->vy_km_s);
+    fprintf(f, " vz_km_s=%.9g", (double)m->vz_km_s);
 }
 
 /* Parse a payload of message apid and print `NAME field=value ...` (no newline).
@@ -600,6 +678,12 @@ static inline int st_print_payload(FILE *f, unsigned apid, const uint8_t *p, siz
         st_time_sync_t m;
         rc = st_parse_time_sync(p, n, &m);
         if (rc == ST_OK) { fprintf(f, "TIME_SYNC"); st_print_time_sync(f, &m); }
+        return rc;
+    }
+    case ST_ID_SET_VELOCITY: {
+        st_set_velocity_t m;
+        rc = st_parse_set_velocity(p, n, &m);
+        if (rc == ST_OK) { fprintf(f, "SET_VELOCITY"); st_print_set_velocity(f, &m); }
         return rc;
     }
     default:

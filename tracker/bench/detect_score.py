@@ -13,7 +13,7 @@ the frame at least ``BORDER_PX`` from the edge, not blended (no other star
 of at least ``BLEND_FLUX`` of its flux within ``BLEND_PX``), and meeting the
 set's criterion (peak SNR >= 5 or matched-filter SNR >= 7).
 
-Metrics (SEED-METHOD.md's definitions): Euclidean error d per matched
+Metrics (docs/seed-method.md's definitions): Euclidean error d per matched
 detectable star, RMSE = sqrt(mean d^2), mean d, FDR = false / detected,
 recall = matched detectable / detectable; the Cramer-Rao bound of the same
 stars (tracker.detect.crb) as RMS over them.

@@ -38,7 +38,7 @@ STATUS_VALUES = {
     "uptime_s": 100, "frame_rate_hz": 30.0, "exposure_us": 20000, "gain": 2.0,
     "cpu_temp_c": 55.0, "mode": Mode.TRACKING, "frames": 3000, "capture_faults": 0,
     "solve_failures": 1, "link_drops": 0, "link_reopens": 0, "rx_rejects": 0, "last_error": 0,
-    "config_crc": 0x12345678,
+    "config_crc": 0x12345678, "time_source": 1, "corrections": 3,
 }
 
 
@@ -65,7 +65,7 @@ def sample_stars(rng: np.random.Generator, n: int) -> np.ndarray:
 
 def sample_attitude(enc: Encoder, k: int) -> bytes:
     return enc.encode(MsgId.ATTITUDE, frame_id=k, t_ns=k * 33_333_333, q_w=0.5, q_x=0.5,
-                      q_y=-0.5, q_z=0.5, sigma_xy_arcsec=5.0, sigma_roll_arcsec=30.0,
+                      q_y=-0.5, q_z=0.5, sigma_cross_arcsec=5.0, sigma_roll_arcsec=30.0,
                       rate_x=0.01, rate_y=0.0, rate_z=-0.02, matched=17, mode=Mode.TRACKING,
                       flags=3)
 
@@ -81,14 +81,14 @@ def _costs(rng: np.random.Generator, n: int = 3000) -> dict:
     out = {}
     for name, make in makers.items():
         t0 = time.perf_counter()
-        frames = [make(k) for k in range(n)]
+        packets = [make(k) for k in range(n)]
         t_enc = (time.perf_counter() - t0) / n
-        stream = b"".join(frames)
+        stream = b"".join(packets)
         dec = StreamDecoder(Direction.TM)
         t0 = time.perf_counter()
         got = sum(len(dec.feed(stream[i:i + 4096])) for i in range(0, len(stream), 4096))
         t_dec = (time.perf_counter() - t0) / n
-        out[name] = {"frame_bytes": len(frames[0]), "encode_us": t_enc * 1e6,
+        out[name] = {"packet_bytes": len(packets[0]), "encode_us": t_enc * 1e6,
                      "decode_us": t_dec * 1e6, "decoded": got, "of": n}
     return out
 
@@ -115,7 +115,10 @@ def _fuzz(rng: np.random.Generator, n: int) -> dict:
     pool = [sample_attitude(tm, 1), *tm.centroids(1, 1, stars),
             tm.encode(MsgId.STATUS, **STATUS_VALUES),
             tc.encode(MsgId.PING), tc.encode(MsgId.SET_MODE, mode=2),
-            tc.encode(MsgId.SET_GAIN, gain=2.0), tc.encode(MsgId.TIME_SYNC, fc_time_ns=5)]
+            tc.encode(MsgId.SET_GAIN, gain=2.0),
+            tc.encode(MsgId.TIME_SYNC, fc_time_ns=1_800_000_037 * 10**9),
+            tc.encode(MsgId.SET_VELOCITY, t_ns=1_800_000_037 * 10**9, vx_km_s=-7.5,
+                      vy_km_s=0.5, vz_km_s=1.25)]
     decoders = [StreamDecoder(Direction.TM), StreamDecoder(Direction.TC, keep_rejects=True)]
     crashes, first_error, packets, biggest = 0, None, 0, 0
     t0 = time.perf_counter()
@@ -172,7 +175,7 @@ def _overload(cfg, rng: np.random.Generator, baud: int, seconds: float) -> dict:
     k = 0
     while time.monotonic() - t0 < seconds:
         t_ns = time.monotonic_ns()
-        link.send_attitude(frame_id=k, t_ns=t_ns, q=[1.0, 0.0, 0.0, 0.0], sigma_xy_arcsec=5.0,
+        link.send_attitude(frame_id=k, t_ns=t_ns, q=[1.0, 0.0, 0.0, 0.0], sigma_cross_arcsec=5.0,
                            sigma_roll_arcsec=30.0, matched=12, mode=Mode.TRACKING)
         link.send_centroids(k, t_ns, stars)
         link.send_status(**STATUS_VALUES)
@@ -216,9 +219,9 @@ def _markdown(r: dict) -> str:
     lines = ["# Benchmark: serial protocol", "",
              f"Machine: {m['cpu']}, {m['cores']} cores, {m['memory_gib']} GiB, {m['os']}, "
              f"Python {m['python']}", "", "## Cost per packet", "",
-             "| message | frame bytes | encode us | decode us |", "|---|---:|---:|---:|"]
+             "| message | packet bytes | encode us | decode us |", "|---|---:|---:|---:|"]
     for name, c in r["costs"].items():
-        lines.append(f"| {name} | {c['frame_bytes']} | {c['encode_us']:.1f} | "
+        lines.append(f"| {name} | {c['packet_bytes']} | {c['encode_us']:.1f} | "
                      f"{c['decode_us']:.1f} |")
     f = r["fuzz"]
     lines += ["", "## Decoder fuzzing", "",

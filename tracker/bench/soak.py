@@ -28,26 +28,24 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import pty
 import resource
 import tempfile
 import threading
 import time
-import tty
 from pathlib import Path
 
 import numpy as np
 
 from tracker.bench.machine import describe_machine
+from tracker.capture.backends import make_source
 from tracker.capture.base import FrameError
-from tracker.capture.live import make_source
 from tracker.config import Config
+from tracker.daemon import Daemon, DaemonLink
 from tracker.pipeline import Pipeline
 from tracker.protocol.decoder import StreamDecoder
 from tracker.protocol.encoder import Encoder
-from tracker.protocol.messages import Direction, MsgId
-from tracker.service import Service, State
-from tracker.service_link import ServiceLink
+from tracker.protocol.messages import Direction, ErrorCode, Mode, MsgId
+from tracker.protocol.nullmodem import ReplugPty
 
 __all__ = ["add_arguments", "run"]
 
@@ -136,11 +134,14 @@ class _FlakyPipeline:
     def __init__(self, inner: Pipeline, inj: _Injector):
         self.inner, self.inj = inner, inj
 
-    def process(self, image, bit_depth, t_ns):
+    def reset(self):
+        self.inner.reset()
+
+    def process(self, image, bit_depth, t_ns, observer=None):
         if self.inj.due(self.inj.args.stage_every):
             self.inj.n["stage_raise"] += 1
             raise RuntimeError("injected: stage failure")
-        return self.inner.process(image, bit_depth, t_ns)
+        return self.inner.process(image, bit_depth, t_ns, observer)
 
 
 class _FlightComputer(threading.Thread):
@@ -157,17 +158,7 @@ class _FlightComputer(threading.Thread):
         self.lock = threading.Lock()
         self.stop = threading.Event()
         self.status_event = threading.Event()
-        self.master = self._new_pty()
-
-    def _new_pty(self) -> int:
-        master, slave = pty.openpty()
-        tty.setraw(slave)
-        os.set_blocking(master, False)
-        tmp = self.link_path.with_suffix(".new")
-        os.symlink(os.ttyname(slave), tmp)
-        os.replace(tmp, self.link_path)
-        self._slave = slave     # kept open so the node survives until the link opens it
-        return master
+        self.pty = ReplugPty(link_path)
 
     def ask(self, what: str) -> None:
         with self.lock:
@@ -176,10 +167,7 @@ class _FlightComputer(threading.Thread):
     def _do(self, what: str) -> None:
         rng = np.random.default_rng(len(self.requests) + sum(self.inj.n.values()))
         if what == "close":
-            old, old_slave = self.master, self._slave
-            self.master = self._new_pty()
-            os.close(old)
-            os.close(old_slave)
+            self.pty.replug()
             self.inj.n["port_close"] += 1
         elif what == "garbage":
             bad = bytearray(self.encoder.encode(MsgId.PING))
@@ -200,14 +188,14 @@ class _FlightComputer(threading.Thread):
         deadline = time.monotonic() + 5
         while view and time.monotonic() < deadline:
             try:
-                view = view[os.write(self.master, view):]
+                view = view[os.write(self.pty.master, view):]
             except BlockingIOError:
                 self._read()
                 time.sleep(0.001)
 
     def _read(self) -> None:
         try:
-            data = os.read(self.master, 65536)
+            data = os.read(self.pty.master, 65536)
         except (BlockingIOError, OSError):
             return
         for p in self.decoder.feed(data):
@@ -224,8 +212,7 @@ class _FlightComputer(threading.Thread):
                 self._do(what)
             self._read()
             time.sleep(0.002)
-        os.close(self.master)
-        os.close(self._slave)
+        self.pty.close()
 
 
 def _percentiles(values: np.ndarray) -> dict:
@@ -264,7 +251,7 @@ def run(args, cfg: Config) -> int:
         if k >= n:
             return
         lat[k] = report.latency_ms
-        tracking[k] = report.state == State.TRACKING
+        tracking[k] = report.mode == Mode.TRACKING
         for name, ms in report.stages_ms.items():
             stage_names.setdefault(name, np.full(n, np.nan))[k] = ms
         done["k"] = k = k + 1
@@ -288,9 +275,9 @@ def run(args, cfg: Config) -> int:
             done["injected_drops"] = (inj.n["corrupt_frame"] + inj.n["source_raise"]
                                       + inj.n["stage_raise"])
 
-    service = Service(cfg, source_factory=lambda: _FlakySource(make_source(cfg), inj),
-                      pipeline=_FlakyPipeline(Pipeline(cfg), inj), link=ServiceLink(cfg),
-                      on_frame=on_frame)
+    service = Daemon(cfg, source_factory=lambda: _FlakySource(make_source(cfg), inj),
+                     pipeline=_FlakyPipeline(Pipeline(cfg), inj), link=DaemonLink(cfg),
+                     on_frame=on_frame)
 
     def stopper() -> None:
         while done["k"] < n and not fc.stop.is_set():
@@ -339,9 +326,10 @@ def _report(args, service, inj, fc, lat, tracking, stage_names, rss, wall, crash
     warm = next((b for k, b in rss if k >= 100), rss[0][1])
     checks = {
         "no crash": crashed is None,
-        "corrupt frames counted": h.faults["frame_unreadable"] == inj.n["corrupt_frame"],
-        "source raises counted": h.faults["camera_lost"] == inj.n["source_raise"],
-        "stage raises counted": h.faults["stage_error"] == inj.n["stage_raise"],
+        "corrupt frames counted":
+            h.faults[ErrorCode.FRAME_UNREADABLE] == inj.n["corrupt_frame"],
+        "source raises counted": h.faults[ErrorCode.CAMERA_LOST] == inj.n["source_raise"],
+        "stage raises counted": h.faults[ErrorCode.STAGE_ERROR] == inj.n["stage_raise"],
         "port closes -> link reopens": link.get("reopens", 0) == inj.n["port_close"],
         "bad-CRC frames -> rx rejects": link.get("rx_bad_crc", 0) >= inj.n["bad_crc_frame"],
         "STATUS capture_faults": status.get("capture_faults", -1) >= injected_drops > 0,
@@ -354,7 +342,7 @@ def _report(args, service, inj, fc, lat, tracking, stage_names, rss, wall, crash
         "args": {k: v for k, v in vars(args).items() if k not in ("func",)},
         "crash": crashed,
         "injected": inj.n,
-        "service_faults": h.faults, "capture_faults": h.capture_faults,
+        "service_faults": h.fault_counts(), "capture_faults": h.capture_faults,
         "frames_taken": h.frames, "processed": h.processed, "solved": h.solved,
         "tracking_frames": int(tracking.sum()),
         "link": link, "fc_decoded": fc.counts, "final_status": status,
@@ -393,9 +381,9 @@ def _markdown(r: dict) -> str:
     lines += ["", "## Faults: injected, counted by the service, in the final STATUS", "",
               "| fault | injected | service count |", "|---|---|---|"]
     f = r["service_faults"]
-    rows = [("corrupt frame", "corrupt_frame", f["frame_unreadable"]),
-            ("source raises", "source_raise", f["camera_lost"]),
-            ("stage raises", "stage_raise", f["stage_error"]),
+    rows = [("corrupt frame", "corrupt_frame", f.get("frame_unreadable", 0)),
+            ("source raises", "source_raise", f.get("camera_lost", 0)),
+            ("stage raises", "stage_raise", f.get("stage_error", 0)),
             ("port closed", "port_close", r["link"].get("reopens", 0)),
             ("bad-CRC frame", "bad_crc_frame", r["link"].get("rx_bad_crc", 0)),
             ("garbage bursts (200 B)", "garbage_burst", r["link"].get("rx_bytes_dropped", 0)),

@@ -3,7 +3,7 @@
 Live backends import their hardware libraries lazily, only when chosen.
 """
 
-from tracker.capture.base import Frame, FrameError, FrameSource
+from tracker.capture.base import Frame, FrameError, FrameSource, Waiting
 from tracker.capture.replay import ReplaySource
 
-__all__ = ["Frame", "FrameError", "FrameSource", "ReplaySource"]
+__all__ = ["Frame", "FrameError", "FrameSource", "ReplaySource", "Waiting"]

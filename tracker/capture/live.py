@@ -1,10 +1,15 @@
-"""What the live backends share, and the factory that picks a backend by name.
+"""What the live backends (picamera2, V4L2) share: errors, waiting, clocks.
 
 A live source raises :class:`CameraError` from its iterator when the camera
-is gone or cannot be configured (the service closes it, waits and opens a
+is gone or cannot be configured (the daemon closes it, waits and opens a
 new one); a single late or bad frame is yielded as a
 :class:`~tracker.capture.base.FrameError` instead and the stream goes on.
-Live sources also offer ``set_controls(exposure_us, gain)``.
+While it waits for a frame it yields :class:`~tracker.capture.base.Waiting`
+at least every :data:`WAIT_SLICE_S` seconds, so the daemon keeps feeding
+systemd's watchdog at any frame rate. A frame is late (``FrameError`` with
+:data:`TIMEOUT_REASON`) when it has not come within the frame period plus
+``capture.timeout_s``. Live sources also offer ``set_controls(exposure_us,
+gain)``.
 
 Times: ``Frame.t_ns`` is the exposure mid-point on CLOCK_MONOTONIC.
 libcamera stamps frames on CLOCK_BOOTTIME; :func:`boottime_to_monotonic`
@@ -14,17 +19,14 @@ converts (the two clocks differ by the time spent suspended).
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
-from tracker.config import Config
-
-__all__ = ["CameraError", "TIMEOUT_REASON", "LiveSource", "boottime_to_monotonic",
-           "make_source", "cpu_temperature_c"]
+__all__ = ["CameraError", "TIMEOUT_REASON", "WAIT_SLICE_S", "LiveSource",
+           "boottime_to_monotonic", "frame_deadline_s"]
 
 # FrameError.reason of a frame that did not arrive in time starts with this.
 TIMEOUT_REASON = "no frame within"
-
-_THERMAL = Path("/sys/class/thermal/thermal_zone0/temp")
+# Longest a live source blocks before it yields Waiting.
+WAIT_SLICE_S = 0.25
 
 
 class CameraError(RuntimeError):
@@ -44,42 +46,17 @@ class LiveSource:
         self.close()
 
 
+def frame_deadline_s(fps: float, exposure_us: float, timeout_s: float) -> float:
+    """Seconds to wait for one frame before it is late: its period plus ``timeout_s``.
+
+    The period is 1/fps, or (fps 0: the camera runs as fast as the exposure
+    allows) the exposure time.
+    """
+    period = 1.0 / fps if fps > 0 else exposure_us * 1e-6
+    return period + timeout_s
+
+
 def boottime_to_monotonic(t_boot_ns: int) -> int:
     """A CLOCK_BOOTTIME instant expressed on CLOCK_MONOTONIC, in ns."""
     offset = time.clock_gettime_ns(time.CLOCK_BOOTTIME) - time.monotonic_ns()
     return t_boot_ns - offset
-
-
-def cpu_temperature_c(path: Path = _THERMAL) -> float | None:
-    """SoC temperature in degrees C from sysfs, or None where there is none."""
-    try:
-        return int(path.read_text().strip()) / 1000.0
-    except (OSError, ValueError):
-        return None
-
-
-def make_source(cfg: Config, paths: list[str] | None = None):
-    """A new FrameSource for ``cfg.capture.backend``.
-
-    ``paths`` (replay only) overrides ``capture.replay_path``. Live backends
-    are imported here, so picamera2 is loaded only when it is chosen.
-    Raises FileNotFoundError when replay has nothing to read.
-    """
-    cap = cfg.capture
-    shape = (cfg.camera.height, cfg.camera.width)
-    if cap.backend == "picamera2":
-        from tracker.capture.picamera2_source import Picamera2Source
-
-        return Picamera2Source(cap, shape)
-    if cap.backend == "v4l2":
-        from tracker.capture.v4l2_source import V4L2Source
-
-        return V4L2Source(cap, shape)
-    from tracker.capture.replay import ReplaySource
-
-    paths = list(paths or ([cap.replay_path] if cap.replay_path else []))
-    if not paths:
-        raise FileNotFoundError("replay backend: no frames given (capture.replay_path or "
-                                "--replay PATH)")
-    return ReplaySource(paths, loop=cap.loop, fps=cap.fps, bits16_depth=cfg.camera.bit_depth,
-                        expect_shape=shape)

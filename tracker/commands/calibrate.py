@@ -2,14 +2,17 @@
 
 Each frame (an image, run through the configured detector, or a
 ``*.centroids.json`` list with ``width``, ``height`` and ``stars: [{x, y,
-flux}]``) is solved lost in space with the configured camera; when that
-fails the focal length is swept over +-``--scale-range`` in 0.5 % steps with
-looser tolerances, because real lenses differ from nominal by percents.
-The identified stars of all solved frames then fix focal length, principal
-point and radial distortion by bundle adjustment
+flux}]``; an image and its centroid list count once, the list is used) is
+solved lost in space with the focal length unknown within
++-``--scale-range`` of the configured one. The range is searched in pieces
+of +-10 % (each with the pattern database for its field, built once into
+the cache), the configured focal length first and then outward, so a lens
+label 20 % off is found. The identified stars of all solved frames then fix
+focal length, principal point and radial distortion by bundle adjustment
 (tracker.identify.calibration); the frames are identified again with the
 fitted lens and the fit repeated. The configuration is written with the
-``camera`` section replaced (everything else as loaded).
+``camera`` section replaced (everything else as loaded). Progress goes to
+standard error.
 """
 
 from __future__ import annotations
@@ -24,17 +27,22 @@ import numpy as np
 
 from tracker.camera import CameraModel
 from tracker.capture.imagefile import IMAGE_SUFFIXES, read_image
+from tracker.capture.input_paths import expand_inputs
 from tracker.catalogue import Catalogue
-from tracker.cli import UserError
+from tracker.commands.argtypes import non_negative
 from tracker.config import render_yaml
 from tracker.detect import STAR_DTYPE, make_detector
+from tracker.errors import UserError
+from tracker.identify import make_solver
 from tracker.identify.calibration import CalibrationFrame, calibrate
-from tracker.identify.database import PatternDatabase, find_database
-from tracker.identify.solver import Solver
+from tracker.identify.database import ProgressLines
 
-__all__ = ["register", "run", "load_stars", "expand_frames"]
+__all__ = ["register", "run", "load_stars", "expand_frames", "search_pieces",
+           "CENTROIDS_SUFFIX"]
 
-_SCALE_STEP = 0.005
+CENTROIDS_SUFFIX = ".centroids.json"
+_PIECE = 0.1          # each piece of the search covers +-10 % of its centre
+_STEP = 1.2           # centres of neighbouring pieces differ by this factor
 
 
 def register(sub, common) -> None:
@@ -46,23 +54,20 @@ def register(sub, common) -> None:
     p.add_argument("--fix-centre", action="store_true",
                    help="keep the principal point (advised for a single frame)")
     p.add_argument("--fit-k2", action="store_true", help="fit the r^4 distortion term too")
-    p.add_argument("--scale-range", type=float, default=0.08,
-                   help="search the focal length within this fraction of nominal")
+    p.add_argument("--scale-range", type=non_negative, default=0.3,
+                   help="search focal lengths within this fraction of camera.focal_length_mm: "
+                        "the default 0.3 searches 0.7-1.3 times it (11.2-20.8 mm for 16 mm), "
+                        "in pieces of +-10 %%, the configured value first")
     p.set_defaults(func=run)
 
 
 def expand_frames(paths: list[str]) -> list[Path]:
-    out = []
-    for name in paths:
-        path = Path(name)
-        if path.is_dir():
-            out += sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
-                          or p.name.endswith(".centroids.json"))
-        elif path.exists():
-            out.append(path)
-        else:
-            raise FileNotFoundError(f"{path}: no such file or folder")
-    return out
+    """Images and centroid lists named, or in folders named (tracker.capture.input_paths).
+
+    A folder holding an image and its ``<image>.centroids.json`` gives the list only.
+    """
+    return expand_inputs(paths, (*IMAGE_SUFFIXES, CENTROIDS_SUFFIX),
+                         what="images or centroid lists", companion=CENTROIDS_SUFFIX)
 
 
 def load_stars(path: Path, cfg) -> tuple[np.ndarray, int, int]:
@@ -83,28 +88,24 @@ def load_stars(path: Path, cfg) -> tuple[np.ndarray, int, int]:
     return det.stars.copy(), width, height
 
 
-def _scales(scale_range: float) -> list[float]:
-    n = int(round(scale_range / _SCALE_STEP))
+def search_pieces(scale_range: float) -> list[float]:
+    """Focal-length factors of the pieces' centres: 1 first, then outward, both sides.
+
+    Each piece covers +-10 % of its centre; centres are a factor 1.2 apart
+    (so neighbours overlap) until the range +-scale_range is covered.
+    """
     out = [1.0]
-    for k in range(1, n + 1):
-        out += [1.0 + k * _SCALE_STEP, 1.0 - k * _SCALE_STEP]
-    return out
-
-
-def _solve_frame(stars, camera: CameraModel, cfg_id, bound, catalogue, scales):
-    """(camera used, Solution) for the first scale that solves, or (None, last)."""
-    sol = None
-    for s in scales:
-        cam = dataclasses.replace(camera, f_px=camera.f_px * s)
-        loose = s != 1.0
-        ident = dataclasses.replace(
-            cfg_id, pair_tolerance_px=max(cfg_id.pair_tolerance_px, 4.0 if loose else 0.0),
-            match_radius_px=max(cfg_id.match_radius_px, 4.0 if loose else 0.0),
-            max_lis_ms=max(cfg_id.max_lis_ms, 2000.0))
-        sol = Solver(ident, cam, bound, catalogue).solve(stars, 0)
-        if sol.ok:
-            return cam, sol
-    return None, sol
+    k = 1
+    while True:
+        added = False
+        for c in (_STEP ** k, _STEP ** -k):
+            if (c > 1 and c * (1 - _PIECE) < 1 + scale_range) or \
+                    (c < 1 and c * (1 + _PIECE) > 1 - scale_range):
+                out.append(c)
+                added = True
+        if not added:
+            return out
+        k += 1
 
 
 def _frame(stars, sol, catalogue, by_hip) -> CalibrationFrame:
@@ -114,9 +115,54 @@ def _frame(stars, sol, catalogue, by_hip) -> CalibrationFrame:
     return CalibrationFrame(xy=xy, ref=np.asarray(catalogue.vectors[rows]), R=sol.R)
 
 
+def _progress() -> ProgressLines:
+    return ProgressLines(lambda text: print(f"  {text}", file=sys.stderr), steps=4,
+                         prefix="building the pattern database for this field")
+
+
+class _Solvers:
+    """One solver per piece of the focal-length search, made when first needed."""
+
+    def __init__(self, cfg, nominal: CameraModel, catalogue, scale_range: float):
+        self.cfg, self.nominal, self.catalogue = cfg, nominal, catalogue
+        self.pieces = search_pieces(scale_range)
+        self._made: dict[float, object] = {}
+
+    def solver(self, centre: float):
+        if centre not in self._made:
+            cam = dataclasses.replace(self.nominal, f_px=self.nominal.f_px * centre)
+            ident = dataclasses.replace(self.cfg.identify, focal_tolerance=_PIECE,
+                                        focal_search=0.0)
+            print(f"  searching {self._mm(cam.f_px * (1 - _PIECE))}-"
+                  f"{self._mm(cam.f_px * (1 + _PIECE))}", file=sys.stderr)
+            self._made[centre] = make_solver(ident, cam, self.catalogue, _progress())
+        return self._made[centre]
+
+    def _mm(self, f_px: float) -> str:
+        return f"{f_px * self.cfg.camera.pixel_size_um / 1000:.2f} mm"
+
+    def solve(self, stars):
+        """The first piece's solution that holds (pieces in order), or the last failure."""
+        sol = None
+        for centre in self.pieces:
+            solver = self.solver(centre)
+            solver.reset()
+            sol = solver.solve(stars, 0)
+            if sol.ok:
+                return sol
+        return sol
+
+
 def run(args, cfg) -> int:
+    if not 0.0 <= args.scale_range <= 0.6:
+        raise UserError(f"--scale-range: found {args.scale_range}, expected 0-0.6")
     paths = expand_frames(args.frames)
-    loaded = [(p, *load_stars(p, cfg)) for p in paths]
+    if not paths:
+        raise UserError("no frames: give images, *.centroids.json files or folders of them")
+    loaded = []
+    for i, p in enumerate(paths, 1):
+        print(f"[{i}/{len(paths)}] reading {p.name}", file=sys.stderr)
+        loaded.append((p, *load_stars(p, cfg)))
     sizes = {(w, h) for _, _, w, h in loaded}
     if len(sizes) != 1:
         raise UserError(f"frames of different sizes {sorted(sizes)}: calibrate one camera "
@@ -126,28 +172,36 @@ def run(args, cfg) -> int:
     nominal = CameraModel.from_config(cam_cfg)
     catalogue = Catalogue.from_config(cfg.catalogue)
     by_hip = np.argsort(catalogue.hip)
-    db_path = cfg.identify.database or find_database(nominal.fov_diagonal_rad)
-    bound = PatternDatabase.load(db_path).bind(catalogue)
-    frames, camera = [], nominal
-    for path, stars, _, _ in loaded:
-        cam, sol = _solve_frame(stars, nominal, cfg.identify, bound, catalogue,
-                                _scales(args.scale_range))
-        if cam is None:
-            print(f"{path.name}: not solved ({sol.reason})", file=sys.stderr)
+    solvers = _Solvers(dataclasses.replace(cfg, camera=cam_cfg), nominal, catalogue,
+                       args.scale_range)
+    frames = []
+    camera = nominal
+    for i, (path, stars, _, _) in enumerate(loaded, 1):
+        sol = solvers.solve(stars)
+        if not sol.ok:
+            print(f"[{i}/{len(loaded)}] {path.name}: not solved ({sol.reason})", file=sys.stderr)
             continue
-        print(f"{path.name}: solved with f = {cam.f_px:.1f} px, {sol.matched} stars",
-              file=sys.stderr)
-        camera = cam
+        print(f"[{i}/{len(loaded)}] {path.name}: solved, {sol.matched} stars, f = "
+              f"{sol.focal_length_mm:.3f} mm", file=sys.stderr)
+        camera = dataclasses.replace(nominal, f_px=sol.focal_length_mm * 1000
+                                     / cam_cfg.pixel_size_um)
         frames.append((stars, _frame(stars, sol, catalogue, by_hip)))
     if not frames:
         raise UserError("no frame could be solved; check the camera section "
-                        "(size, pixel_size_um, focal_length_mm)")
+                        "(size, pixel_size_um, focal_length_mm) or widen --scale-range")
+    print(f"fitting the lens to {len(frames)} frames", file=sys.stderr)
     result = calibrate(camera, [f for _, f in frames], fit_centre=not args.fix_centre,
                        fit_k2=args.fit_k2)
     # identify again with the fitted lens: more and surer matches
+    fitted = dataclasses.replace(cam_cfg, focal_length_mm=result.camera.f_px
+                                 * cam_cfg.pixel_size_um / 1000.0, cx=result.camera.cx,
+                                 cy=result.camera.cy, k1=result.camera.k1, k2=result.camera.k2)
+    again_solver = make_solver(dataclasses.replace(cfg.identify, focal_search=0.0),
+                               CameraModel.from_config(fitted), catalogue, _progress())
     again = []
     for stars, _ in frames:
-        sol = Solver(cfg.identify, result.camera, bound, catalogue).solve(stars, 0)
+        again_solver.reset()
+        sol = again_solver.solve(stars, 0)
         if sol.ok:
             again.append(_frame(stars, sol, catalogue, by_hip))
     if again:
@@ -164,7 +218,7 @@ def run(args, cfg) -> int:
     print(f"{args.out}: {len(again) or len(frames)} frames, {result.stars} stars "
           f"({result.rejected} rejected), RMS {result.rms_px:.3f} px; f = {cam.f_px:.2f} px "
           f"({new_camera.focal_length_mm:.4f} mm, {scale:.3f} arcsec/px), cx {cam.cx:.2f}, "
-          f"cy {cam.cy:.2f}, k1 {cam.k1:.4g}, k2 {cam.k2:.4g}; nominal f "
+          f"cy {cam.cy:.2f}, k1 {cam.k1:.4g}, k2 {cam.k2:.4g}; configured f "
           f"{nominal.f_px:.2f} px ({100 * (cam.f_px / nominal.f_px - 1):+.2f} %), diagonal "
           f"FOV {math.degrees(cam.fov_diagonal_rad):.3f} deg", file=sys.stderr)
     return 0

@@ -2,10 +2,12 @@
 
 Decodes telemetry live and prints one line per packet (ATTITUDE as boresight
 RA/Dec and roll, rates, counters), sends commands (``--send ping``,
-``--send set-mode tracking``, repeatable), and logs the raw bytes or the
-decoded packets (JSON lines) to a file. Stops after ``--count`` packets,
-``--duration`` seconds, or Ctrl-C, then prints the counters (packets per
-message, sequence gaps, decoder drops).
+``--send set-mode tracking``, repeatable; the port may come before or after
+them), and logs the raw bytes or the decoded packets (JSON lines, flushed
+per packet) to a file. A port error is reported and the port reopened.
+Stops after ``--count`` packets, ``--duration`` seconds, or Ctrl-C, then
+prints the counters (packets per message, sequence gaps, decoder drops,
+port errors).
 """
 
 from __future__ import annotations
@@ -18,8 +20,12 @@ import time
 import numpy as np
 import serial
 
+from tracker.astrometry.observer import Correction, TimeSource
+from tracker.astrometry.timescale import TimeError, tai_minus_utc_s, utc_iso_from_tai_ns
 from tracker.attitude import matrix_from_quat, radec_roll_from_matrix
-from tracker.cli import UserError
+from tracker.commands.argtypes import count, non_negative, positive_count
+from tracker.commands.outputs import close_output, open_output
+from tracker.errors import UserError
 from tracker.protocol.decoder import Packet, StreamDecoder
 from tracker.protocol.encoder import Encoder
 from tracker.protocol.framing import SEQ_MODULO
@@ -28,19 +34,22 @@ from tracker.protocol.messages import AttitudeFlag, Direction, Mode, MsgId, Reas
 _MODES = {"standby": Mode.STANDBY, "lost-in-space": Mode.LOST_IN_SPACE,
           "tracking": Mode.TRACKING}
 _OUTPUTS = {"attitude": MsgId.ATTITUDE, "centroids": MsgId.CENTROIDS, "status": MsgId.STATUS}
+_REOPEN_WAIT_S = 0.5
 _USAGE = ("ping | request-status | time-sync | set-mode standby|lost-in-space|tracking | "
-          "set-exposure US | set-gain X | set-output attitude|centroids|status HZ")
+          "set-exposure US | set-gain X | set-output attitude|centroids|status HZ | "
+          "set-velocity VX VY VZ")
 
 
 def register(sub, common) -> None:
     p = sub.add_parser("monitor", parents=[common], help="FC side: decode and print the "
                        "tracker's packets live, send commands, log")
-    p.add_argument("port", help="serial device or pyserial URL, e.g. /dev/ttyUSB0")
-    p.add_argument("--baud", type=int, default=None, help="baud rate (default: link.baudrate)")
+    p.add_argument("port", nargs="?", help="serial device or pyserial URL, e.g. /dev/ttyUSB0")
+    p.add_argument("--baud", type=positive_count, default=None,
+                   help="baud rate (default: link.baudrate)")
     p.add_argument("--send", nargs="+", action="append", default=[], metavar="CMD",
                    help=f"send a command first (repeatable): {_USAGE}")
-    p.add_argument("--count", type=int, default=0, help="stop after N packets (0 = no limit)")
-    p.add_argument("--duration", type=float, default=0.0,
+    p.add_argument("--count", type=count, default=0, help="stop after N packets (0 = no limit)")
+    p.add_argument("--duration", type=non_negative, default=0.0,
                    help="stop after S seconds (0 = no limit)")
     p.add_argument("--log", metavar="FILE", help="also write to FILE")
     p.add_argument("--log-format", choices=("raw", "jsonl"), default="jsonl",
@@ -49,33 +58,85 @@ def register(sub, common) -> None:
     p.set_defaults(func=run)
 
 
+# command -> its arguments' names, as the usage shows them
+_ARGUMENTS = {"ping": (), "request-status": (), "time-sync": (), "set-mode": ("MODE",),
+              "set-exposure": ("US",), "set-gain": ("X",), "set-output": ("MESSAGE", "HZ"),
+              "set-velocity": ("VX", "VY", "VZ")}
+
+
+def host_tai_ns() -> int:
+    """This computer's clock as TAI ns since 1970 (its UTC plus the leap seconds)."""
+    utc_ns = time.time_ns()
+    return utc_ns + tai_minus_utc_s(utc_ns / 1e9) * 1_000_000_000
+
+
+def split_port(port: str | None, sends: list[list[str]]) -> tuple[str, list[list[str]]]:
+    """The port and the ``--send`` groups, when the port came after a ``--send``.
+
+    ``--send ping /dev/ttyUSB0`` gives argparse one group of two words; the
+    words past what the last command takes are the port.
+    """
+    if port is None and sends and sends[-1][0].lower() in _ARGUMENTS:
+        last = sends[-1]
+        takes = len(_ARGUMENTS[last[0].lower()])
+        if len(last) == takes + 2:
+            return last[-1], [*sends[:-1], last[:-1]]
+    if port is None:
+        raise UserError("no serial port given: tracker monitor PORT [--send CMD ...]")
+    return port, sends
+
+
+def _number(words: list[str], word: str, kind: type, expected: str):
+    try:
+        value = kind(word)
+    except ValueError:
+        value = None
+    if value is None or (kind is float and not math.isfinite(value)):
+        raise UserError(f"--send {' '.join(words)}: found {word!r}, expected {expected}")
+    return value
+
+
 def build_command(encoder: Encoder, words: list[str]) -> bytes:
     """The frame for one ``--send`` command; UserError if it cannot be encoded."""
     name, args = words[0].lower(), words[1:]
-    want = {"ping": 0, "request-status": 0, "time-sync": 0, "set-mode": 1,
-            "set-exposure": 1, "set-gain": 1, "set-output": 2}
-    if name not in want:
+    if name not in _ARGUMENTS:
         raise UserError(f"--send {name}: unknown command; expected one of: {_USAGE}")
-    if len(args) != want[name]:
-        raise UserError(f"--send {name}: expected {want[name]} argument(s), found {len(args)}")
+    if len(args) != len(_ARGUMENTS[name]):
+        shown = " ".join((name, *_ARGUMENTS[name]))
+        raise UserError(f"--send {' '.join(words)}: found {len(args)} argument(s), expected "
+                        f"{shown}")
+    if name == "ping":
+        values = (MsgId.PING, {})
+    elif name == "request-status":
+        values = (MsgId.REQUEST_STATUS, {})
+    elif name == "time-sync":
+        values = (MsgId.TIME_SYNC, {"fc_time_ns": host_tai_ns()})
+    elif name == "set-velocity":
+        v = [_number(words, a, float, "a velocity in km/s (ICRS axes, relative to the "
+                                      "Earth's centre)") for a in args]
+        values = (MsgId.SET_VELOCITY, {"t_ns": host_tai_ns(), "vx_km_s": v[0],
+                                       "vy_km_s": v[1], "vz_km_s": v[2]})
+    elif name == "set-mode":
+        mode = _MODES.get(args[0].lower())
+        if mode is None:
+            mode = _number(words, args[0], int, "standby, lost-in-space, tracking or a mode "
+                                                "number (to test the NACK)")
+        values = (MsgId.SET_MODE, {"mode": mode})
+    elif name == "set-exposure":
+        values = (MsgId.SET_EXPOSURE, {"exposure_us": _number(
+            words, args[0], int, "a whole number of microseconds")})
+    elif name == "set-gain":
+        values = (MsgId.SET_GAIN, {"gain": _number(words, args[0], float, "a number")})
+    else:
+        if args[0].lower() not in _OUTPUTS:
+            raise UserError(f"--send {' '.join(words)}: found {args[0]!r}, expected attitude, "
+                            "centroids or status")
+        values = (MsgId.SET_OUTPUT, {"msg_id": _OUTPUTS[args[0].lower()],
+                                     "rate_hz": _number(words, args[1], float, "a rate in Hz")})
     try:
-        if name == "ping":
-            return encoder.encode(MsgId.PING)
-        if name == "request-status":
-            return encoder.encode(MsgId.REQUEST_STATUS)
-        if name == "time-sync":
-            return encoder.encode(MsgId.TIME_SYNC, fc_time_ns=time.time_ns())
-        if name == "set-mode":
-            mode = _MODES[args[0]] if args[0] in _MODES else int(args[0])
-            return encoder.encode(MsgId.SET_MODE, mode=mode)
-        if name == "set-exposure":
-            return encoder.encode(MsgId.SET_EXPOSURE, exposure_us=int(args[0]))
-        if name == "set-gain":
-            return encoder.encode(MsgId.SET_GAIN, gain=float(args[0]))
-        return encoder.encode(MsgId.SET_OUTPUT, msg_id=_OUTPUTS[args[0]],
-                              rate_hz=float(args[1]))
-    except (ValueError, KeyError) as exc:
-        raise UserError(f"--send {' '.join(words)}: {exc}; expected {_USAGE}") from None
+        return encoder.encode(values[0], **values[1])
+    except ValueError as exc:
+        raise UserError(f"--send {' '.join(words)}: {exc}") from None
 
 
 def _name(enum, value: int) -> str:
@@ -90,12 +151,19 @@ def describe(p: Packet) -> str:
     v = p.values
     head = f"{p.name:<10}seq {p.seq:5d}"
     if p.id == MsgId.ATTITUDE:
-        text = f"{head}  frame {v['frame_id']}  t {v['t_ns'] / 1e9:.6f} s"
+        if v["flags"] & AttitudeFlag.TIME_SYNCED:
+            try:
+                when = utc_iso_from_tai_ns(v["t_ns"])[:-7] + "Z"       # to the microsecond
+            except TimeError:
+                when = f"{v['t_ns']} ns TAI"
+        else:
+            when = f"{v['t_ns'] / 1e9:.6f} s"
+        text = f"{head}  frame {v['frame_id']}  t {when}"
         if v["flags"] & AttitudeFlag.VALID:
             ra, dec, roll = radec_roll_from_matrix(matrix_from_quat(
                 [v["q_w"], v["q_x"], v["q_y"], v["q_z"]]))
             text += (f"  RA {math.degrees(ra):9.4f} Dec {math.degrees(dec):+8.4f} "
-                     f"roll {math.degrees(roll):8.4f} deg  sigma {v['sigma_xy_arcsec']:.1f}/"
+                     f"roll {math.degrees(roll):8.4f} deg  sigma {v['sigma_cross_arcsec']:.1f}/"
                      f"{v['sigma_roll_arcsec']:.1f} arcsec")
         else:
             text += "  no attitude"
@@ -115,7 +183,8 @@ def describe(p: Packet) -> str:
                 f"{v['capture_faults']}  solve failures {v['solve_failures']}  link drops "
                 f"{v['link_drops']}  reopens {v['link_reopens']}  rx rejects "
                 f"{v['rx_rejects']}  last error {v['last_error']}  config "
-                f"0x{v['config_crc']:08x}")
+                f"0x{v['config_crc']:08x}  time {_name(TimeSource, v['time_source'])}  "
+                f"corrections {Correction(v['corrections'] & 7).name or '-'}")
     return (f"{head}  {_name(MsgId, v['cmd_id'])} seq {v['cmd_seq']}  "
             f"{_name(Reason, v['code'])}")
 
@@ -132,26 +201,36 @@ def _jsonable(p: Packet) -> dict:
 
 def run(args, cfg) -> int:
     encoder = Encoder(Direction.TC)
-    commands = [build_command(encoder, words) for words in args.send]
+    port_name, sends = split_port(args.port, args.send)
+    commands = [build_command(encoder, words) for words in sends]
+    log = None
+    if args.log:
+        log = open_output(args.log, "--log", "ab" if args.log_format == "raw" else "a")
     try:
-        port = serial.serial_for_url(args.port, baudrate=args.baud or cfg.link.baudrate,
+        port = serial.serial_for_url(port_name, baudrate=args.baud or cfg.link.baudrate,
                                      timeout=0.1)
     except (serial.SerialException, OSError, ValueError) as exc:
-        raise UserError(f"cannot open {args.port}: {exc}") from None
+        close_output(log)
+        raise UserError(f"cannot open {port_name}: {exc}") from None
     decoder = StreamDecoder(Direction.TM, validate=False)
     counts: dict[str, int] = {}
     gaps: dict[str, int] = {}
     last_seq: dict[int, int] = {}
-    log = open(args.log, "ab" if args.log_format == "raw" else "a") if args.log else None
     t_end = time.monotonic() + args.duration if args.duration > 0 else math.inf
-    seen = 0
+    seen = port_errors = 0
     try:
         for frame in commands:
             port.write(frame)
         while time.monotonic() < t_end and not (args.count and seen >= args.count):
-            data = port.read(max(1, port.in_waiting))
+            try:
+                data = port.read(max(1, port.in_waiting))
+            except (serial.SerialException, OSError) as exc:
+                port_errors += 1
+                _reopen(port, exc)
+                continue
             if log is not None and args.log_format == "raw":
                 log.write(data)
+                log.flush()
             for p in decoder.feed(data):
                 seen += 1
                 counts[p.name] = counts.get(p.name, 0) + 1
@@ -162,16 +241,32 @@ def run(args, cfg) -> int:
                     print(describe(p), flush=True)
                 if log is not None and args.log_format == "jsonl":
                     log.write(json.dumps(_jsonable(p)) + "\n")
+                    log.flush()
                 if args.count and seen >= args.count:
                     break
     except KeyboardInterrupt:
         pass
-    except (serial.SerialException, OSError) as exc:
-        print(f"tracker monitor: port error: {exc}", file=sys.stderr)
     finally:
         port.close()
-        if log is not None:
-            log.close()
+        close_output(log)
     print(f"packets {json.dumps(counts)}  sequence gaps {json.dumps(gaps)}  decoder "
-          f"{json.dumps(decoder.counters)}")
+          f"{json.dumps(decoder.counters)}  port errors {port_errors}")
     return 0
+
+
+def _reopen(port, exc: Exception) -> None:
+    """After a port error: say so, wait a little and open the port again (as an FC would).
+
+    A pseudo-terminal whose far end is being reopened, or a USB adapter
+    pulled and put back, recovers; the wait keeps a dead port from spinning.
+    """
+    print(f"tracker monitor: port error: {exc}; reopening", file=sys.stderr, flush=True)
+    try:
+        port.close()
+    except (serial.SerialException, OSError):
+        pass
+    time.sleep(_REOPEN_WAIT_S)
+    try:
+        port.open()
+    except (serial.SerialException, OSError):
+        pass        # the next read fails and says so again

@@ -1,4 +1,4 @@
-"""A one-line progress bar on standard error, shown only on a terminal."""
+"""A one-line progress bar on standard error, shown only on a terminal (and if enabled)."""
 
 from __future__ import annotations
 
@@ -11,12 +11,12 @@ __all__ = ["Progress"]
 class Progress:
     """``advance()`` once per item; ``total`` None for an open-ended run."""
 
-    def __init__(self, total: int | None, label: str, stream=None):
+    def __init__(self, total: int | None, label: str, stream=None, enabled: bool = True):
         self.total = total
         self.label = label
         self.stream = stream or sys.stderr
         self.count = 0
-        self.enabled = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.enabled = enabled and bool(getattr(self.stream, "isatty", lambda: False)())
         self._t0 = time.monotonic()
         self._last_draw = 0.0
 

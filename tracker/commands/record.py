@@ -5,13 +5,25 @@ written as ``DIR/frame_NNNNNN.npy`` (default: exact, fast) or ``.png``
 (16-bit for 10-bit data, lossless, smaller, slower), which ``tracker replay
 DIR`` reads in name order. ``DIR/frames.jsonl`` gets one JSON object per
 frame: ``file``, ``index``, ``t_ns`` (exposure mid-point, monotonic),
-``wall_time`` (UTC, ISO 8601), ``exposure_us``, ``gain``, ``bit_depth``,
-``cpu_temp_c`` and the backend's ``meta`` (sensor timestamp...); a frame the
-source could not deliver gets ``{"index", "error"}``.
+``wall_time`` (when it was saved, UTC, ISO 8601), ``exposure_us``, ``gain``,
+``bit_depth``, ``cpu_temp_c`` and the backend's ``meta`` (sensor
+timestamp...); a frame the source could not deliver gets ``{"index",
+"error"}``.
+
+``utc``, the exposure mid-point as ISO 8601 UTC (what replay needs to
+correct aberration), is written only when it is known: from the camera's
+monotonic stamp and the Pi's own clock when ``time.system_clock`` trusts
+that clock (``always``, or ``synchronised`` while the kernel says NTP keeps
+it: tracker.system_clock), and for frames recorded from files (``--replay``)
+when their own record has one; the same goes for
+``observer_velocity_km_s``.
 
 Disk-space guard: before each frame the free space of DIR's file system is
 checked, and recording stops (exit status 1, after closing the files
-cleanly) when writing the frame would leave less than ``--min-free-mb``.
+cleanly) when writing the frame would leave less than ``--min-free-mb``. A
+write that fails all the same (the disk filled up faster, a quota) stops it
+the same way: the partial frame file is removed, one line says why, and
+``frames.jsonl`` (written a line at a time) lists every frame kept.
 """
 
 from __future__ import annotations
@@ -27,10 +39,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tracker.capture.base import FrameError
-from tracker.capture.live import CameraError, cpu_temperature_c, make_source
-from tracker.cli import UserError
+from tracker.astrometry.observer import Observer
+from tracker.astrometry.timescale import utc_iso_from_tai_ns
+from tracker.board import cpu_temperature_c
+from tracker.capture.backends import make_source
+from tracker.capture.base import FrameError, Waiting
+from tracker.capture.live import CameraError
+from tracker.commands.argtypes import count, non_negative, positive_count
+from tracker.commands.outputs import output_folder
 from tracker.config import Config
+from tracker.daemon.timebase import TimeBase
+from tracker.errors import UserError
 
 __all__ = ["register", "run", "DiskGuard"]
 
@@ -52,11 +71,12 @@ def register(sub, common) -> None:
     p = sub.add_parser("record", parents=[common], help="save camera frames and metadata "
                        "(exposure, gain, time, temperature) for `tracker replay`")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for frames + frames.jsonl")
-    p.add_argument("--frames", type=int, default=100, metavar="N",
+    p.add_argument("--frames", type=count, default=100, metavar="N",
                    help="frames to save (default 100; 0 = until stopped)")
-    p.add_argument("--every", type=int, default=1, metavar="K", help="keep every K-th frame")
+    p.add_argument("--every", type=positive_count, default=1, metavar="K",
+                   help="keep every K-th frame")
     p.add_argument("--format", choices=("npy", "png"), default="npy", help="file format")
-    p.add_argument("--min-free-mb", type=float, default=500.0, metavar="MB",
+    p.add_argument("--min-free-mb", type=non_negative, default=500.0, metavar="MB",
                    help="stop when less than this would remain free (default 500)")
     p.add_argument("--replay", nargs="+", metavar="PATH",
                    help="record from these files instead of the camera (tests, re-encoding)")
@@ -64,31 +84,50 @@ def register(sub, common) -> None:
 
 
 def _save(path: Path, image: np.ndarray) -> None:
-    if path.suffix == ".npy":
-        np.save(path, image, allow_pickle=False)
-    elif not cv2.imwrite(str(path), image):
-        raise OSError(f"{path}: could not write the PNG")
+    """Write one frame; on any failure remove what was written and raise OSError."""
+    try:
+        if path.suffix == ".npy":
+            np.save(path, image, allow_pickle=False)
+        elif not cv2.imwrite(str(path), image):
+            raise OSError("the PNG encoder failed")
+    except OSError:
+        path.unlink(missing_ok=True)
+        raise
+
+
+def _absolute_time(observer: Observer) -> dict:
+    """A frame record's ``utc`` and ``observer_velocity_km_s``, where known (module doc)."""
+    out = {}
+    if observer.t_tai_ns is not None:
+        out["utc"] = utc_iso_from_tai_ns(observer.t_tai_ns)
+        if observer.velocity_km_s is not None:
+            out["observer_velocity_km_s"] = list(observer.velocity_km_s)
+    return out
 
 
 def run(args, cfg: Config) -> int:
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder(args.out, "--out")
     guard = DiskGuard(out, int(args.min_free_mb * 2**20))
     if args.replay:
         cfg = dataclasses.replace(cfg, capture=dataclasses.replace(cfg.capture,
                                                                    backend="replay"))
+    timebase = TimeBase(cfg.time)
     stop = []
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     saved = seen = 0
     code = 0
     try:
+        # one line at a time (line buffering): whatever stops the recording, the
+        # index lists every frame that was kept
         with make_source(cfg, args.replay) as source, \
-                open(out / "frames.jsonl", "a", encoding="utf-8") as meta:
+                open(out / "frames.jsonl", "a", encoding="utf-8", buffering=1) as meta:
             for item in source:
                 if stop or (args.frames and saved >= args.frames):
                     break
+                if isinstance(item, Waiting):     # a live camera between frames
+                    continue
                 seen += 1
-                if (seen - 1) % max(args.every, 1):
+                if (seen - 1) % args.every:
                     continue
                 if isinstance(item, FrameError):
                     meta.write(json.dumps({"index": item.index, "error": item.reason}) + "\n")
@@ -99,13 +138,23 @@ def run(args, cfg: Config) -> int:
                     code = 1
                     break
                 name = f"frame_{saved:06d}.{args.format}"
-                _save(out / name, item.image)
-                record = {"file": name, "index": item.index, "t_ns": item.t_ns,
-                          "wall_time": datetime.now(UTC).isoformat(timespec="milliseconds"),
-                          "exposure_us": item.exposure_us, "gain": item.gain,
-                          "bit_depth": item.bit_depth, "cpu_temp_c": cpu_temperature_c(),
-                          "source": item.name, "meta": item.meta}
-                meta.write(json.dumps(record) + "\n")
+                try:
+                    _save(out / name, item.image)
+                    record = {"file": name, "index": item.index, "t_ns": item.t_ns,
+                              "wall_time": datetime.now(UTC).isoformat(timespec="milliseconds"),
+                              "exposure_us": item.exposure_us, "gain": item.gain,
+                              "bit_depth": item.bit_depth, "cpu_temp_c": cpu_temperature_c(),
+                              "source": item.name, "meta": item.meta,
+                              **_absolute_time(item.recorded_observer() if args.replay
+                                               else timebase.observer_for(item))}
+                    meta.write(json.dumps(record) + "\n")
+                except OSError as exc:
+                    (out / name).unlink(missing_ok=True)
+                    log.error("cannot write %s (%s; %s bytes free there); stopped after %d "
+                              "frames", out / name, exc.strerror or exc,
+                              f"{shutil.disk_usage(out).free:,}", saved)
+                    code = 1
+                    break
                 saved += 1
     except KeyboardInterrupt:
         pass

@@ -2,7 +2,7 @@
 
 Reads frames from ``capture.backend`` (replay, picamera2 or v4l2), runs
 them through the pipeline and talks to the flight computer on
-``link.port``; see :mod:`tracker.service`. Logs go to stderr (journald
+``link.port``; see :mod:`tracker.daemon`. Logs go to stderr (journald
 under systemd). Options override the configuration for a run, e.g. the
 demo's::
 
@@ -10,6 +10,11 @@ demo's::
 
 With ``--summary FILE`` (``-`` = stdout) a JSON object is written at the end:
 frames, solved, faults, latency percentiles (ms) and the link's counters.
+
+Exit status: 0 after SIGTERM/SIGINT or the last replayed frame; 1 when the
+serial link's threads died (systemd restarts the unit); 2 for a
+configuration the user must fix (systemd does not restart: the unit's
+``RestartPreventExitStatus=2``).
 """
 
 from __future__ import annotations
@@ -19,26 +24,27 @@ import json
 import logging
 import sys
 
-from tracker.capture.live import make_source
+from tracker.capture.backends import make_source
+from tracker.commands.argtypes import count, non_negative
 from tracker.config import Config
+from tracker.daemon import Daemon, DaemonLink
 from tracker.pipeline import Pipeline
-from tracker.service import Service
-from tracker.service_link import ServiceLink
 
-__all__ = ["register", "run", "build_service", "summary"]
+__all__ = ["register", "run", "build_daemon", "summary"]
 
 
 def register(sub, common) -> None:
     p = sub.add_parser("run", parents=[common], help="run the service: camera -> attitude "
                        "-> serial link (what systemd starts)")
-    p.add_argument("--frames", type=int, metavar="N",
+    p.add_argument("--frames", type=count, metavar="N",
                    help="stop after N frames (service.frames; default: run until stopped)")
     p.add_argument("--port", metavar="DEVICE", help="serial device or pyserial URL "
                    "(link.port), e.g. a pseudo-terminal")
     p.add_argument("--replay", nargs="+", metavar="PATH",
                    help="use the replay backend on these files or folders")
     p.add_argument("--loop", action="store_true", help="replay: start again after the last file")
-    p.add_argument("--fps", type=float, help="capture.fps (replay pacing; live frame rate)")
+    p.add_argument("--fps", type=non_negative,
+                   help="capture.fps (replay pacing; live frame rate)")
     p.add_argument("--summary", metavar="FILE", help="write a JSON summary at the end "
                    "('-' = stdout)")
     p.set_defaults(func=run)
@@ -59,8 +65,8 @@ def _override(cfg: Config, args) -> Config:
     return dataclasses.replace(cfg, capture=capture, service=service, link=link)
 
 
-def build_service(cfg: Config, replay: list[str] | None = None, **kwargs) -> Service:
-    """The service with the real stages; ``kwargs`` go to :class:`Service`.
+def build_daemon(cfg: Config, replay: list[str] | None = None, **kwargs) -> Daemon:
+    """The daemon with the real stages; ``kwargs`` go to :class:`~tracker.daemon.Daemon`.
 
     Raises FileNotFoundError at once if replay frames are missing, and the
     database's ConfigError if no pattern database fits the camera.
@@ -72,20 +78,20 @@ def build_service(cfg: Config, replay: list[str] | None = None, **kwargs) -> Ser
         # load the catalogue and pattern database now (a wrong database is a
         # clear error at start-up), not inside the first frame's latency
         pipeline.solver  # noqa: B018
-    return Service(cfg, source_factory=lambda: make_source(cfg, replay),
-                   pipeline=pipeline,
-                   link=kwargs.pop("link", None) or ServiceLink(cfg), **kwargs)
+    return Daemon(cfg, source_factory=lambda: make_source(cfg, replay),
+                  pipeline=pipeline,
+                  link=kwargs.pop("link", None) or DaemonLink(cfg), **kwargs)
 
 
-def summary(service: Service) -> dict:
-    """The end-of-run JSON summary of a service."""
-    h = service.health
-    link = getattr(service.link, "link", None)
+def summary(daemon: Daemon) -> dict:
+    """The end-of-run JSON summary of a daemon."""
+    h = daemon.health
+    link = getattr(daemon.link, "link", None)
     return {
-        "state": service.state.value,
+        "mode": daemon.mode.name,
         "frames": h.frames, "processed": h.processed, "solved": h.solved,
         "solve_rate": round(h.solved / h.processed, 4) if h.processed else 0.0,
-        "faults": {k: v for k, v in h.faults.items() if v},
+        "faults": h.fault_counts(),
         "latency_ms": {k: round(v, 3) for k, v in h.latency_percentiles().items()},
         "link": link.stats() if link is not None else {},
     }
@@ -95,11 +101,11 @@ def run(args, cfg: Config) -> int:
     cfg = _override(cfg, args)
     if not args.verbose:
         logging.getLogger().setLevel(cfg.service.log_level)
-    service = build_service(cfg, args.replay)
-    service.install_signal_handlers()
-    code = service.run()
+    daemon = build_daemon(cfg, args.replay)
+    daemon.install_signal_handlers()
+    code = daemon.run()
     if args.summary:
-        text = json.dumps(summary(service), indent=2) + "\n"
+        text = json.dumps(summary(daemon), indent=2) + "\n"
         if args.summary == "-":
             sys.stdout.write(text)
         else:

@@ -6,7 +6,7 @@ Each frame (an image through the configured detector, or a
 hip}]``, as written by ``tracker simulate`` or shipped with the real
 frames). A centroid within ``--truth-px`` of a truth star is that star.
 
-* ``--affine``: the seed method (SEED-METHOD.md): the first ``--refs``
+* ``--affine``: the seed method (docs/seed-method.md): the first ``--refs``
   truth stars are the hand-picked references; an affine map pixel ->
   (RA, Dec) is fitted to them; every centroid goes to the nearest catalogue
   star within ``--tolerance-deg`` (0.1).
@@ -31,10 +31,13 @@ import numpy as np
 from tracker.attitude import radec_to_vector, vector_to_radec
 from tracker.camera import CameraModel
 from tracker.catalogue import Catalogue
-from tracker.cli import UserError
-from tracker.commands.calibrate import expand_frames, load_stars
+from tracker.commands.argtypes import positive, positive_count
+from tracker.commands.calibrate import CENTROIDS_SUFFIX, expand_frames, load_stars
+from tracker.commands.outputs import close_output, open_output
+from tracker.errors import UserError
 from tracker.identify import make_solver
 from tracker.identify.affine import apply_affine, fit_affine, law_of_cosines, nearest_star
+from tracker.truth import read_truth_json
 
 __all__ = ["register", "run"]
 
@@ -48,18 +51,26 @@ def register(sub, common) -> None:
                    help="images or *.centroids.json files (truth beside each), or folders")
     p.add_argument("--affine", action="store_true",
                    help="the seed method: affine fit to reference stars, nearest HIP")
-    p.add_argument("--refs", type=int, default=3, help="reference stars for --affine (>= 3)")
-    p.add_argument("--tolerance-deg", type=float, default=0.1,
+    p.add_argument("--refs", type=positive_count, default=3,
+                   help="reference stars for --affine (>= 3)")
+    p.add_argument("--tolerance-deg", type=positive, default=0.1,
                    help="--affine: nearest-star match tolerance")
-    p.add_argument("--truth-px", type=float, default=2.0,
+    p.add_argument("--truth-px", type=positive, default=2.0,
                    help="a centroid this close to a truth star is that star")
     p.add_argument("--json", metavar="FILE", help="write the per-frame numbers here")
     p.set_defaults(func=run)
 
 
 def _truth_file(path: Path) -> Path:
-    name = path.name.removesuffix(".centroids.json")
+    name = path.name.removesuffix(CENTROIDS_SUFFIX)
     return path.with_name(name + ".truth.json")
+
+
+def _read_truth(path: Path) -> dict:
+    truth_path = _truth_file(path)
+    if not truth_path.exists():
+        raise UserError(f"{truth_path}: truth file not found")
+    return read_truth_json(truth_path)
 
 
 def _truth_vectors(truth: dict, catalogue) -> tuple[np.ndarray, np.ndarray]:
@@ -73,7 +84,7 @@ def _truth_vectors(truth: dict, catalogue) -> tuple[np.ndarray, np.ndarray]:
             v = catalogue.vectors[rows[int(s["hip"])]]
         else:
             continue
-        xy.append((s["x"], s["y"]))
+        xy.append((float(s["x"]), float(s["y"])))
         vec.append(v)
     return np.reshape(xy, (-1, 2)), np.reshape(vec, (-1, 3))
 
@@ -132,12 +143,13 @@ def run(args, cfg) -> int:
     solver = None
     rows = []
     for path in expand_frames(args.frames):
-        truth_path = _truth_file(path)
-        if not truth_path.exists():
-            raise FileNotFoundError(f"{truth_path}: truth file not found")
+        truth = _read_truth(path)
         stars, width, height = load_stars(path, cfg)
-        truth = json.loads(truth_path.read_text(encoding="utf-8"))
-        truth_xy, truth_vec = _truth_vectors(truth, catalogue)
+        try:
+            truth_xy, truth_vec = _truth_vectors(truth, catalogue)
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise UserError(f"{_truth_file(path)}: a star without usable x, y and ra_deg/"
+                            f"dec_deg or hip ({type(exc).__name__}: {str(exc)[:40]})") from None
         xy = np.column_stack([stars["x"], stars["y"]])
         if args.affine:
             mapped, picked = _affine_frame(xy, truth_xy, truth_vec, catalogue, args)
@@ -162,6 +174,7 @@ def run(args, cfg) -> int:
                      f"| {r['max_err_deg']:.4f} |")
     sys.stdout.write("\n".join(lines) + "\n")
     if args.json:
-        Path(args.json).write_text(json.dumps({"method": method, "frames": rows}, indent=1),
-                                   encoding="utf-8")
+        out = open_output(args.json, "--json")
+        out.write(json.dumps({"method": method, "frames": rows}, indent=1))
+        close_output(out)
     return 0

@@ -1,106 +1,184 @@
-"""Lost-in-space search: image star triangles against catalogue pair separations.
+"""Lost-in-space search: four-star image patterns looked up by their scale-free code.
 
-For three image stars i, j, k the three measured separations each select a
-band of catalogue pairs from the sorted table (binary search, the k-vector's
-job). A catalogue triangle (I, J, K) is a candidate when (I, J), (J, K) and
-(I, K) are each in their band and its handedness (sign of the triple product)
-equals the image's (a rotation cannot mirror the sky). Triangles are tried in
-the order of the Pyramid technique (Mortari et al. 2004): the index gaps
-``dj``, ``dk`` grow in the outer loops, so a false or missing star among the
-brightest blocks only a few consecutive triads. Each candidate is handed to
-the caller, which verifies it against the rest of the field
-(tracker.identify.verify); that replaces the pyramid's fourth-star test with
-one that uses every star.
+The brightest image stars are taken four at a time in a fixed order
+(tracker.identify.patterns.pattern_order). For each four:
 
-Everything is numpy; the join of two bands on their shared star sorts one
-band (a few thousand entries) and expands the matches with ``np.repeat``.
+1. their pixel positions become unit vectors with the focal length at both
+   ends and the centre of the prior [f_low, f_high]; the code (sorted edge
+   ratios) over that range, widened by what ``tolerance_px`` of error on
+   any edge can do, bounds the catalogue pattern's code;
+2. the database returns the patterns in the bins of that box; each is
+   checked exactly against the box, its stars are put in correspondence
+   with the image's (the assignment whose edges agree best), the focal
+   length it implies (image angles over catalogue angles) must lie in the
+   prior, and its handedness must be the image's (a rotation cannot mirror
+   the sky);
+3. each survivor is a :class:`Hypothesis`: the attitude from the four stars
+   (Wahba) and the focal length.
+
+The caller verifies hypotheses against the rest of the field and stops at
+the first that holds. Work is counted, not timed: :class:`WorkBudget` caps
+the patterns looked up and the hypotheses verified, so the same stars give
+the same answer on any machine under any load.
 """
 
 from __future__ import annotations
 
-from functools import lru_cache
+import dataclasses
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
+from tracker.attitude import solve_wahba
+from tracker.camera import CameraModel
 from tracker.identify.database import BoundDatabase
+from tracker.identify.patterns import EDGES, code_bounds, codes, edge_angles, match_stars
+from tracker.identify.patterns import pattern_order as _pattern_order
 
-__all__ = ["triad_order", "TriangleSearch"]
+__all__ = ["WorkBudget", "Hypothesis", "PatternSearch"]
 
-
-@lru_cache(maxsize=64)
-def triad_order(n: int) -> np.ndarray:
-    """Image-star index triads (T, 3), i < j < k < n, in the Pyramid order."""
-    out = []
-    for dj in range(1, n - 1):
-        for dk in range(1, n - dj):
-            for i in range(0, n - dj - dk):
-                out.append((i, i + dj, i + dj + dk))
-    triads = np.array(out, dtype=np.int64).reshape(-1, 3)
-    triads.flags.writeable = False
-    return triads
+_BATCH = 24
+_TRIPLES = np.array([(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)], dtype=np.int64)
 
 
-class TriangleSearch:
-    """Finds catalogue triangles matching image triangles.
+@dataclass
+class WorkBudget:
+    """Work allowed and done in one lost-in-space search (counts, never time).
 
-    Parameters
-    ----------
-    bound : the database tied to the catalogue epoch.
-    tolerance : half-width (radians) of the band each separation selects.
+    ``chance`` sums, over the patterns looked up, the expected number of
+    wrong catalogue patterns that would pass the lookup by chance: those
+    whose code falls in its box (tracker.identify.database.BoundDatabase.
+    lookup), times the share of patterns whose size the focal-length prior
+    allows, times one half (a random match has the image's handedness half
+    the time). It is the union bound's factor in the false-match probability.
     """
 
-    def __init__(self, bound: BoundDatabase, tolerance: float) -> None:
+    max_patterns: int
+    max_hypotheses: int
+    patterns: int = 0
+    hypotheses: int = 0
+    chance: float = 0.0
+
+    @property
+    def exhausted(self) -> bool:
+        return self.patterns >= self.max_patterns or self.hypotheses >= self.max_hypotheses
+
+
+@dataclass
+class Hypothesis:
+    """A candidate: attitude ``R`` (v_cam = R v_icrs) and focal length ``f_px``.
+
+    ``image`` (4,) are the image stars (indices into the search's input) and
+    ``stars`` (4,) the database stars they were matched to.
+    """
+
+    R: np.ndarray
+    f_px: float
+    image: np.ndarray
+    stars: np.ndarray
+
+
+class PatternSearch:
+    """Generates hypotheses for a frame (module docstring).
+
+    ``tolerance_px``: the largest error expected on the length of a pattern
+    edge (centroid errors plus unmodelled distortion); ``min_edge_px``:
+    patterns with a shorter edge are not tried.
+    """
+
+    def __init__(self, bound: BoundDatabase, tolerance_px: float, min_edge_px: float) -> None:
         self.bound = bound
-        self.tolerance = float(tolerance)
-        self._n = len(bound.vectors)
+        self.tolerance_px = float(tolerance_px)
+        self.min_edge_px = float(min_edge_px)
+        self._max_edge = 2.0 * math.radians(bound.design.region_radius_deg)
 
-    def _band(self, angle: float) -> tuple[np.ndarray, np.ndarray]:
-        """Both orientations (first, second) of the catalogue pairs near ``angle``."""
-        sep = self.bound.sep
-        lo = np.searchsorted(sep, angle - self.tolerance, side="left")
-        hi = np.searchsorted(sep, angle + self.tolerance, side="right")
-        a = self.bound.a[lo:hi]
-        b = self.bound.b[lo:hi]
-        return np.concatenate((a, b)), np.concatenate((b, a))
+    def _quads(self, xy: np.ndarray, vec_narrow: np.ndarray, n: int) -> np.ndarray:
+        """The image quadruples worth a lookup, in trying order."""
+        quads = _pattern_order(n)
+        d = np.hypot(xy[:n, None, 0] - xy[None, :n, 0], xy[:n, None, 1] - xy[None, :n, 1])
+        px = d[quads[:, EDGES[:, 0]], quads[:, EDGES[:, 1]]]
+        # the database holds no pattern wider than two region radii
+        widest = edge_angles(vec_narrow[quads]).max(axis=1)
+        return quads[(px.min(axis=1) >= self.min_edge_px) & (widest <= self._max_edge)]
 
-    def candidates(self, vij: float, vjk: float, vik: float, handed: float) -> np.ndarray:
-        """Catalogue triangles (C, 3) for image separations ij, jk, ik (radians).
+    def hypotheses(self, xy: np.ndarray, camera: CameraModel, f_low: float, f_high: float,
+                   n_stars: int, budget: WorkBudget,
+                   skip_f: tuple[float, float] | None = None) -> Iterator[Hypothesis]:
+        """Hypotheses from the ``n_stars`` brightest of ``xy`` (n, 2), brightest first.
 
-        ``handed`` is the sign of the image triple product b_i . (b_j x b_k).
+        ``camera`` gives the principal point and distortion; its focal length
+        is replaced by f_low, the centre and f_high (px). Stops when the
+        budget's pattern count is reached (the caller counts hypotheses).
+        ``skip_f`` (low, high): hypotheses whose focal length lies inside are
+        not yielded (already tried by a narrower search).
         """
-        ij_first, ij_second = self._band(vij)
-        if len(ij_first) == 0:
-            return np.empty((0, 3), dtype=np.int32)
-        jk_first, jk_second = self._band(vjk)
-        ik_first, ik_second = self._band(vik)
-        if len(jk_first) == 0 or len(ik_first) == 0:
-            return np.empty((0, 3), dtype=np.int32)
-        # join (I, J) with (J, K) on J
-        order = np.argsort(jk_first, kind="stable")
-        jk_sorted = jk_first[order]
-        lo = np.searchsorted(jk_sorted, ij_second, side="left")
-        hi = np.searchsorted(jk_sorted, ij_second, side="right")
-        counts = hi - lo
-        total = int(counts.sum())
-        if total == 0:
-            return np.empty((0, 3), dtype=np.int32)
-        which = np.repeat(np.arange(len(counts)), counts)
-        offset = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
-        cand_i = ij_first[which]
-        cand_j = ij_second[which]
-        cand_k = jk_second[order[lo[which] + offset]]
-        keep = cand_k != cand_i
-        cand_i, cand_j, cand_k = cand_i[keep], cand_j[keep], cand_k[keep]
-        if len(cand_i) == 0:
-            return np.empty((0, 3), dtype=np.int32)
-        # (I, K) must be in the ik band
-        ik_keys = np.sort(ik_first.astype(np.int64) * self._n + ik_second)
-        keys = cand_i.astype(np.int64) * self._n + cand_k
-        pos = np.minimum(np.searchsorted(ik_keys, keys), len(ik_keys) - 1)
-        keep = ik_keys[pos] == keys
-        if not np.any(keep):
-            return np.empty((0, 3), dtype=np.int32)
-        tri = np.stack((cand_i[keep], cand_j[keep], cand_k[keep]), axis=1)
-        v = self.bound.vectors
-        triple = np.einsum("ij,ij->i", v[tri[:, 0]], np.cross(v[tri[:, 1]], v[tri[:, 2]]))
-        return tri[np.sign(triple) == handed]
+        n = min(n_stars, len(xy))
+        if n < 4:
+            return
+        f_mid = 0.5 * (f_low + f_high)
+        cams = [dataclasses.replace(camera, f_px=f) for f in (f_low, f_mid, f_high)]
+        vecs = np.stack([c.pixel_to_vector(xy[:n]) for c in cams])     # (3, n, 3)
+        quads = self._quads(xy, vecs[2], n)
+        if len(quads) == 0:
+            return
+        edges = edge_angles(vecs[:, quads])                              # (3, Q, 6)
+        mid = edges[1]
+        slack = (1.0 + codes(mid)) * (self.tolerance_px / (mid.max(axis=1) * f_mid))[:, None]
+        low, high = code_bounds(edges, slack)
+        spread = np.max(high - low, axis=1) / 2.0
+        # catalogue sizes the prior allows for each image pattern's largest edge
+        widest = mid.max(axis=1) * f_mid
+        allowed = self.bound.size_fraction(widest / (f_high * (1 + spread)),
+                                           widest / (f_low * (1 - spread)))
+        for start in range(0, len(quads), _BATCH):
+            batch = slice(start, start + _BATCH)
+            found = self._candidates(mid[batch], low[batch], high[batch], spread[batch],
+                                     f_mid, f_low, f_high, skip_f)
+            shares = found[3] * allowed[batch] * 0.5
+            for q in range(len(shares)):
+                if budget.patterns >= budget.max_patterns:
+                    return
+                budget.patterns += 1
+                budget.chance += float(shares[q])
+                quad = quads[start + q]
+                for stars, f_est in zip(*(a[found[0] == q] for a in found[1:3]), strict=True):
+                    ref = self.bound.vectors[stars]
+                    if not _same_handedness(cams[1].pixel_to_vector(xy[quad]), ref):
+                        continue
+                    obs = dataclasses.replace(camera, f_px=float(f_est)).pixel_to_vector(xy[quad])
+                    yield Hypothesis(R=solve_wahba(obs, ref), f_px=float(f_est), image=quad,
+                                     stars=stars)
+
+    def _candidates(self, mid, low, high, spread, f_mid, f_low, f_high, skip_f):
+        """Catalogue patterns matching a batch of image patterns.
+
+        Returns (which image pattern of the batch, catalogue stars (C, 4) in
+        the image stars' order, implied focal length (C,), and the batch's
+        lookup shares (B,)).
+        """
+        bound = self.bound
+        cand, box, shares = bound.lookup(low, high)
+        cat = bound.patterns[cand]
+        cat_edges = edge_angles(bound.vectors[cat])
+        cat_codes = codes(cat_edges)
+        inside = np.all((cat_codes >= low[box]) & (cat_codes <= high[box]), axis=1)
+        box, cat, cat_edges = box[inside], cat[inside], cat_edges[inside]
+        perm, err = match_stars(mid[box], cat_edges)
+        f_est = f_mid * mid[box].sum(axis=1) / cat_edges.sum(axis=1)
+        s = spread[box]
+        ok = (err <= s) & (f_est >= f_low * (1 - s)) & (f_est <= f_high * (1 + s))
+        if skip_f is not None:
+            ok &= (f_est < skip_f[0]) | (f_est > skip_f[1])
+        stars = np.take_along_axis(cat, perm, axis=1)
+        return box[ok], stars[ok], f_est[ok], shares
+
+
+def _same_handedness(img: np.ndarray, ref: np.ndarray) -> bool:
+    """Do the two four-star sets (4, 3) turn the same way (their most solid triangle)?"""
+    det_img = np.einsum("ij,ij->i", img[_TRIPLES[:, 0]],
+                        np.cross(img[_TRIPLES[:, 1]], img[_TRIPLES[:, 2]]))
+    k = int(np.argmax(np.abs(det_img)))
+    a, b, c = _TRIPLES[k]
+    return bool(np.sign(det_img[k]) == np.sign(np.dot(ref[a], np.cross(ref[b], ref[c]))))

@@ -1,40 +1,69 @@
-"""The star solver: lost in space, tracking, verification and the attitude.
+"""The star solver: lost in space, tracking, verification, the attitude and the lens.
 
 ``solve(stars, t_ns)`` takes the detector's stars (pixel centroids and
-fluxes) and returns a :class:`Solution`. It keeps state between calls:
+fluxes) and returns a :class:`Solution`. It keeps state between calls: the
+last attitude and rate (for tracking) and the lens estimate.
 
 1. **Tracking** (when the last solution is recent): the attitude is
    predicted from the last one and the angular rate of the last two; every
-   catalogue star is projected, image stars are paired with the nearest
-   prediction within ``track_gate_px``, the attitude is solved and the
-   pairing repeated within ``match_radius_px``. Lock is kept while the
-   match verifies (below); otherwise:
-2. **Lost in space**: triangles of the ``pattern_stars`` brightest stars are
-   looked up in the pattern database (tracker.identify.lost); each
-   candidate's attitude is verified by projecting the database stars and
-   counting matches among the ``verify_stars`` brightest image stars.
-   A hypothesis is accepted when at least ``min_matched`` stars match and
-   the probability that a wrong attitude would match as many
-   (tracker.identify.verify) is below ``max_prob_false``.
+   catalogue star is projected through the current lens estimate, image
+   stars are paired with the nearest prediction within ``track_gate_px``,
+   the attitude is solved and the pairing repeated within
+   ``match_radius_px``. Lock is kept while the match verifies (below);
+   otherwise:
+2. **Lost in space**: four-star patterns of the ``pattern_stars`` brightest
+   stars are looked up by their scale-free code (tracker.identify.lost),
+   with the focal length anywhere in the configured prior
+   (``identify.focal_tolerance`` around ``camera.focal_length_mm``). Each
+   hypothesis (attitude and focal length) is verified by projecting the
+   database stars and counting matches among the ``verify_stars``
+   brightest image stars: once within three pixels, then, with attitude
+   and focal length refitted on those, within ``match_radius_px`` (or 3.5
+   times the residuals' sigma, when the centroids are noisier). It is
+   accepted when at least ``min_matched`` stars match and the probability
+   that a wrong attitude would match as many (tracker.identify.verify) is
+   below ``max_prob_false``. The work is capped by counts
+   (``max_patterns``, ``max_hypotheses``), never by time.
 3. **Refinement**: with the accepted attitude, all image stars are matched
-   to the whole catalogue within ``match_radius_px`` and Wahba's problem is
-   solved again (tracker.attitude.solve_wahba); the residuals give the
-   per-axis angular noise, blended with the ``centroid_sigma_px`` prior
-   (3 degrees of freedom), and from it the cross-boresight and roll sigmas.
+   to the catalogue, within three pixels and again, after the attitude,
+   the focal length and k1 are fitted to them (tracker.identify.lens,
+   priors: the configured lens), within the final radius as in
+   verification (tracking: once, within the radius of the frame before);
+   the fit to those gives this frame's focal length and sigma;
+   the slow lens filter takes the frame's information, and the attitude is
+   solved once more through the filtered lens (Wahba), with sigmas from the
+   residuals blended with the ``centroid_sigma_px`` prior.
+
+Aberration: with the frame's observer context (an absolute time, perhaps a
+velocity: tracker.astrometry.observer) the catalogue directions of tracking
+and refinement (predictions, the lens fit, Wahba) are the apparent ones for
+that observer, so the attitude solved is the ICRS attitude and the lens fit
+does not take aberration's scale (up to 1.3e-4) for a focal length. Lost in
+space uses the database's astrometric directions: aberration moves a field
+nearly as a rotation, which the hypothesis' attitude absorbs (up to 25
+arcsec, well within the refinement's first three-pixel pass), and the
+remainder (|beta| times the angle from the boresight: 0.13 px in the
+corners of an 8 mm lens's field) is well inside the match radius.
+
+When lost in space fails but a search over a wider focal-length range
+(``identify.focal_search``) verifies, the frame is still failed (the
+configuration disagrees with the sky) and ``reason`` says which focal
+length the stars fit and how to set it.
 
 Bad input never raises: the solution's ``reason`` says why there is no
-attitude (``too_few_stars``, ``no_match``, ``not_verified``, ``bad_input``,
-``wrong_fov``, ``timeout``).
+attitude (``too_few_stars``, ``no_match``, ``not_verified``, ``budget``,
+``bad_input``, ``wrong_fov``, or ``focal_length: ...``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from tracker.astrometry.aberration import aberrate
 from tracker.attitude import (
     attitude_covariance,
     matrix_from_rotation_vector,
@@ -47,29 +76,57 @@ from tracker.camera import CameraModel
 from tracker.config import IdentifyConfig
 from tracker.detect.result import StarFlag
 from tracker.identify.database import BoundDatabase
-from tracker.identify.lost import TriangleSearch, triad_order
+from tracker.identify.lens import LensFilter, LensPrior, LensState, fit_frame
+from tracker.identify.lost import Hypothesis, PatternSearch, WorkBudget
 from tracker.identify.verify import Projector, false_match_probability, match_nearest
 from tracker.timing import StageTimer
 
-__all__ = ["Solution", "Solver"]
+__all__ = ["Solution", "Solver", "LensReport"]
 
 _ARCSEC = math.degrees(1.0) * 3600.0
 _PRIOR_DOF = 3.0
+_FIRST_PASS_PX = 3.0
+
+
+@dataclass(frozen=True)
+class LensReport:
+    """The lens as the solver now believes it (the slow filter; tracker.identify.lens).
+
+    ``drift_ppm`` is the focal length's difference from the configured one,
+    parts per million; ``frames`` how many solved frames informed it.
+    """
+
+    focal_length_mm: float
+    sigma_focal_length_mm: float
+    k1: float
+    sigma_k1: float
+    drift_ppm: float
+    frames: int
+
+    def to_json(self) -> dict:
+        return {"focal_length_mm": self.focal_length_mm,
+                "sigma_focal_length_mm": self.sigma_focal_length_mm, "k1": self.k1,
+                "sigma_k1": self.sigma_k1, "drift_ppm": self.drift_ppm, "frames": self.frames}
 
 
 @dataclass
 class Solution:
     """One frame's answer. ``R`` is v_cam = R @ v_icrs; angles in the names' units.
 
-    ``ra_deg``, ``dec_deg``, ``roll_deg`` describe the image centre (DESIGN.md),
+    ``ra_deg``, ``dec_deg``, ``roll_deg`` describe the image centre (docs/conventions.md),
     which is the boresight unless a calibrated principal point moved it.
     ``sigma_cross_arcsec`` is the RMS of the boresight's angular error,
     ``sigma_roll_arcsec`` that of the rotation about it (tracker.attitude.
     attitude_covariance); ``residual_arcsec`` the RMS fit residual per star.
     ``hip`` has one entry per input star (0 = unidentified). ``rate_rad_s`` is
     the body angular velocity in the camera frame from the last two solutions
-    (None if unknown). ``prob_false`` is the model probability that the
-    accepted match is wrong (tracker.identify.verify).
+    (None if unknown, or if they are further apart than ``track_max_gap_s``:
+    a rate averaged over a long gap is not a rate). ``prob_false`` is the
+    model probability that the accepted match is wrong (tracker.identify.verify).
+    ``focal_length_mm`` and ``sigma_focal_length_mm`` are this frame's own
+    estimate (NaN without a solution, or when the pixel size is unknown);
+    ``lens`` is the slow filter's estimate after this frame. ``patterns`` and
+    ``hypotheses`` count the lost-in-space work done.
     """
 
     ok: bool
@@ -87,18 +144,24 @@ class Solution:
     residual_arcsec: float = math.nan
     rate_rad_s: np.ndarray | None = None
     prob_false: float = 1.0
+    focal_length_mm: float = math.nan
+    sigma_focal_length_mm: float = math.nan
+    lens: LensReport | None = None
+    patterns: int = 0
     hypotheses: int = 0
     stages_ms: dict = field(default_factory=dict)
 
     def to_json(self) -> dict | None:
-        """The attitude record of the replay output (DESIGN.md), or None without one."""
+        """The attitude record of the replay output (docs/conventions.md), or None without one."""
         if not self.ok:
             return None
         return {"q": [float(v) for v in self.q], "ra_deg": self.ra_deg,
                 "dec_deg": self.dec_deg, "roll_deg": self.roll_deg, "matched": self.matched,
                 "sigma_arcsec": self.sigma_cross_arcsec,
                 "sigma_roll_arcsec": self.sigma_roll_arcsec, "mode": self.mode,
-                "prob_false": self.prob_false}
+                "prob_false": self.prob_false, "focal_length_mm": self.focal_length_mm,
+                "sigma_focal_length_mm": self.sigma_focal_length_mm,
+                "lens": self.lens.to_json() if self.lens is not None else None}
 
 
 def _not_duplicate(xy: np.ndarray, radius: float) -> np.ndarray:
@@ -119,11 +182,13 @@ def _not_duplicate(xy: np.ndarray, radius: float) -> np.ndarray:
 def _centre_rotation(camera: CameraModel) -> np.ndarray:
     """Rotation (camera frame) taking the image-centre ray to +Z, the smallest one.
 
-    RA/Dec/roll are reported for the image centre (DESIGN.md); with the
+    RA/Dec/roll are reported for the image centre (docs/conventions.md); with the
     principal point elsewhere (a calibrated lens) the boresight is not there.
     """
-    centre = camera.pixel_to_vector(np.array([(camera.width - 1) / 2.0,
-                                              (camera.height - 1) / 2.0]))
+    middle = ((camera.width - 1) / 2.0, (camera.height - 1) / 2.0)
+    if (camera.cx, camera.cy) == middle:
+        return np.eye(3)     # the principal point's ray is +Z for any lens
+    centre = camera.pixel_to_vector(np.array(middle))
     axis = np.cross(centre, [0.0, 0.0, 1.0])
     s = np.linalg.norm(axis)
     if s < 1e-15:
@@ -131,12 +196,27 @@ def _centre_rotation(camera: CameraModel) -> np.ndarray:
     return matrix_from_rotation_vector(axis / s * math.atan2(s, centre[2]))
 
 
+def lens_prior(cfg: IdentifyConfig, camera: CameraModel) -> LensPrior:
+    """The configured lens as a prior: f within the tolerance, k1 within the distortion prior.
+
+    The focal tolerance is taken as two sigma; ``distortion_px`` is the
+    one-sigma displacement k1 may cause at the image corner.
+    """
+    corner = max(math.hypot(x - camera.cx, y - camera.cy)
+                 for x in (-0.5, camera.width - 0.5) for y in (-0.5, camera.height - 0.5))
+    rho = corner / camera.f_px
+    return LensPrior(f_px=camera.f_px, sigma_f_px=max(cfg.focal_tolerance, 1e-4)
+                     * camera.f_px / 2.0, k1=camera.k1,
+                     sigma_k1=max(cfg.distortion_px, 1e-3) / (camera.f_px * rho ** 3))
+
+
 class Solver:
     """Identifies stars and solves the attitude; build it with ``make_solver``.
 
     ``bound`` is the pattern database tied to the catalogue; ``catalogue``
     vectors (and HIP numbers) are used for tracking and refinement.
-    ``fov_error`` (a message) makes every solve fail with ``wrong_fov``.
+    ``fov_error`` (a message) makes every solve fail with ``wrong_fov``. The
+    camera's pixel size converts focal lengths to millimetres for the report.
     """
 
     def __init__(self, cfg: IdentifyConfig, camera: CameraModel, bound: BoundDatabase,
@@ -145,25 +225,39 @@ class Solver:
         self.camera = camera
         self.bound = bound
         self.fov_error = fov_error
+        pixel = camera.pixel_size_um
+        self._mm_per_px = pixel / 1000.0 if pixel else math.nan
         self._cat_hip = np.asarray(catalogue.hip, dtype=np.int32)
         self._cat_vectors = np.ascontiguousarray(catalogue.vectors, dtype=np.float64)
         self._cat_mag = np.asarray(catalogue.mag, dtype=np.float64)
-        self._search = TriangleSearch(bound, cfg.pair_tolerance_px / camera.f_px)
-        self._db_proj = Projector(camera, bound.vectors)
-        self._cat_proj = Projector(camera, self._cat_vectors)
+        self._search = PatternSearch(bound, cfg.pattern_tolerance_px, cfg.min_separation_px)
+        self._db_proj = Projector(bound.vectors)
+        self._cat_proj = Projector(self._cat_vectors)
         self._area = float(camera.width * camera.height)
-        self._max_pair = bound.db.max_pair_angle
-        self._min_sep = cfg.min_separation_px / camera.f_px
-        self._sigma0 = cfg.centroid_sigma_px / camera.f_px
         self._timer = StageTimer()
-        self._to_centre = _centre_rotation(camera)
+        self._prior = lens_prior(cfg, camera)
+        self.lens = LensFilter(self._prior, cfg.lens_time_constant_s)
         self.reset()
 
-    def reset(self) -> None:
-        """Forget the tracking state (the next frame is solved lost in space)."""
+    def reset(self, lens: bool = False) -> None:
+        """Forget the tracking state (the next frame is solved lost in space).
+
+        The lens estimate is kept unless ``lens``: it belongs to the camera,
+        not the pointing (forget it for another camera, or for calls that must
+        not depend on the ones before, as tracker.solve's).
+        """
+        if lens:
+            self.lens.reset()
         self._last_R: np.ndarray | None = None
         self._last_t: int | None = None
         self._rate: np.ndarray | None = None   # rotation vector rate of R, rad/s
+        self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
+        self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
+
+    def lens_camera(self) -> CameraModel:
+        """The camera model with the filtered focal length and k1."""
+        state = self.lens.state()
+        return dataclasses.replace(self.camera, f_px=state.f_px, k1=state.k1)
 
     # -- input ---------------------------------------------------------------
 
@@ -189,17 +283,21 @@ class Solver:
         if len(idx) > 1 and self.cfg.duplicate_px > 0:
             keep = _not_duplicate(xy, self.cfg.duplicate_px)
             idx, xy = idx[keep], xy[keep]
-        if len(idx) < max(3, self.cfg.min_matched):
+        if len(idx) < max(4, self.cfg.min_matched):
             return "too_few_stars"   # no match of fewer could be accepted
         return idx, xy, (flux[idx] if has_flux else None)
 
     # -- public --------------------------------------------------------------
 
-    def solve(self, stars, t_ns: int) -> Solution:
-        """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module."""
+    def solve(self, stars, t_ns: int, observer=None) -> Solution:
+        """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module.
+
+        ``observer``: the frame's tracker.astrometry.observer.Observer (None: unknown).
+        """
         timer = self._timer
         timer.reset()
         timer.start("prepare")
+        self._beta = None if observer is None else observer.beta()
         n_in = len(stars) if hasattr(stars, "__len__") else 0
         hip = np.zeros(n_in, dtype=np.int32)
         if self.fov_error is not None:
@@ -208,30 +306,56 @@ class Solver:
         if isinstance(prepared, str):
             return self._fail(prepared, hip)
         idx, xy, flux = prepared
-        vec = self.camera.pixel_to_vector(xy)
-        found = None
-        mode = "tracking"
+        lens_cam = self.lens_camera()
         if self._can_track(t_ns):
             timer.start("track")
-            found = self._track(xy, vec, t_ns)
-            if found is not None:
+            R = self._track(xy, lens_cam, t_ns)
+            if R is not None:
                 timer.start("refine")
-                sol = self._finish(*found, xy, vec, flux, idx, hip, t_ns, mode)
+                sol = self._finish(R, None, xy, flux, idx, hip, t_ns, "tracking", None, None)
                 if sol is not None:
                     return sol
-        mode = "lost_in_space"
         timer.start("lost_in_space")
-        found = self._lost_in_space(xy, vec)
-        if not isinstance(found, str):
+        budget = WorkBudget(self.cfg.max_patterns, self.cfg.max_hypotheses)
+        f_low, f_high = self._focal_range(self.cfg.focal_tolerance)
+        found = self._lost_in_space(xy, lens_cam, f_low, f_high, budget)
+        if isinstance(found, tuple):
             timer.start("refine")
-            sol = self._finish(*found, xy, vec, flux, idx, hip, t_ns, mode)
+            R, prob, f_px = found
+            sol = self._finish(R, prob, xy, flux, idx, hip, t_ns, "lost_in_space", budget,
+                               f_px)
             if sol is not None:
                 return sol
             found = "not_verified"
         self.reset()
-        return self._fail(found, hip)
+        reason = found
+        if self.cfg.focal_search > self.cfg.focal_tolerance:
+            timer.start("focal_search")
+            wide = WorkBudget(self.cfg.max_patterns, self.cfg.max_hypotheses)
+            lo, hi = self._focal_range(self.cfg.focal_search)
+            hint = self._lost_in_space(xy, lens_cam, lo, hi, wide, skip_f=(f_low, f_high))
+            if isinstance(hint, tuple):
+                reason = self._focal_advice(hint[2])
+        return self._fail(reason, hip, budget)
 
     # -- stages --------------------------------------------------------------
+
+    def _focal_range(self, tolerance: float) -> tuple[float, float]:
+        f = self._prior.f_px
+        return f * (1.0 - tolerance), f * (1.0 + tolerance)
+
+    def _focal_advice(self, f_px: float) -> str:
+        """The reason of a frame whose stars fit a focal length outside the prior."""
+        cfg_f = self._prior.f_px
+        pct = 100.0 * (f_px / cfg_f - 1.0)
+        tol = f"+- {100 * self.cfg.focal_tolerance:g} % (identify.focal_tolerance)"
+        if not math.isfinite(self._mm_per_px):
+            return (f"focal_length: the stars fit a focal length of {f_px:.1f} px ({pct:+.1f} "
+                    f"%), outside the configured {cfg_f:.1f} px {tol}; run `tracker calibrate`")
+        mm = f"{f_px * self._mm_per_px:.4g}"
+        return (f"focal_length: the stars fit a focal length of {mm} mm ({pct:+.1f} %), "
+                f"outside camera.focal_length_mm {cfg_f * self._mm_per_px:.4g} {tol}; set "
+                f"camera.focal_length_mm: {mm}, or run `tracker calibrate`")
 
     def _can_track(self, t_ns: int) -> bool:
         if self._last_R is None or self._last_t is None:
@@ -245,65 +369,79 @@ class Solver:
         dt = (t_ns - self._last_t) / 1e9
         return matrix_from_rotation_vector(self._rate * dt) @ self._last_R
 
-    def _track(self, xy, vec, t_ns):
-        """(R, None, 1) from the predicted attitude after one gated pass, or None."""
+    def _track(self, xy, camera: CameraModel, t_ns: int) -> np.ndarray | None:
+        """The attitude from the predicted one after one gated pass, or None."""
         R = self._predicted(t_ns)
-        cat_idx, pred = self._cat_proj.predict(R)
+        cat_idx, pred = self._cat_proj.predict(R, camera, beta=self._beta)
         which, _ = match_nearest(xy, pred, self.cfg.track_gate_px)
         ok = which >= 0
         if np.count_nonzero(ok) < self.cfg.min_matched:
             return None
-        return solve_wahba(vec[ok], self._cat_vectors[cat_idx[which[ok]]]), None, 1
+        return solve_wahba(camera.pixel_to_vector(xy[ok]), self._seen(cat_idx[which[ok]]))
 
-    def _lost_in_space(self, xy, vec):
-        """(R, prob_false, hypotheses) or a reason code."""
+    def _seen(self, cat_idx: np.ndarray) -> np.ndarray:
+        """Catalogue directions as this frame's observer sees them (module docstring)."""
+        ref = self._cat_vectors[cat_idx]
+        return ref if self._beta is None else aberrate(ref, self._beta)
+
+    def _lost_in_space(self, xy, camera: CameraModel, f_low: float, f_high: float,
+                       budget: WorkBudget, skip_f=None):
+        """(R, prob_false, f_px) of the first verified hypothesis, or a reason code."""
         cfg = self.cfg
-        n_pat = min(cfg.pattern_stars, len(xy))
         n_ver = min(cfg.verify_stars, len(xy))
-        gram = vec[:n_pat] @ vec[:n_pat].T
-        seps = np.arccos(np.clip(gram, -1.0, 1.0))
-        usable = (seps <= self._max_pair) & (seps >= self._min_sep)
-        deadline = time.perf_counter() + cfg.max_lis_ms / 1000.0
-        hypotheses = 0
-        best_reason = "no_match"
-        for t, (i, j, k) in enumerate(triad_order(n_pat)):
-            if t >= cfg.max_triads:
-                break
-            if not (usable[i, j] and usable[j, k] and usable[i, k]):
-                continue
-            handed = np.sign(np.dot(vec[i], np.cross(vec[j], vec[k])))
-            tris = self._search.candidates(seps[i, j], seps[j, k], seps[i, k], handed)
-            for tri in tris:
-                hypotheses += 1
-                R = solve_wahba(vec[[i, j, k]], self.bound.vectors[tri])
-                result = self._verify(R, xy[:n_ver], vec[:n_ver], hypotheses)
-                if result is not None:
-                    return result
-                best_reason = "not_verified"
-            if time.perf_counter() > deadline:
-                return "timeout"
-        return best_reason
+        reason = "no_match"
+        for hyp in self._search.hypotheses(xy, camera, f_low, f_high, cfg.pattern_stars,
+                                           budget, skip_f):
+            if budget.hypotheses >= budget.max_hypotheses:
+                return "budget"
+            budget.hypotheses += 1
+            result = self._verify(hyp, camera, xy[:n_ver], budget.chance)
+            if result is not None:
+                return result
+            reason = "not_verified"
+        return "budget" if budget.exhausted else reason
 
-    def _verify(self, R, xy, vec, hypotheses):
-        """Check a 3-star hypothesis against the database stars; (R, prob, h) or None."""
+    def _first_radius(self) -> float:
+        return max(_FIRST_PASS_PX, self.cfg.match_radius_px)
+
+    def _final_radius(self, residuals: np.ndarray) -> float:
+        """The final pass's match radius: ``match_radius_px``, or wider for noisier centroids.
+
+        3.5 sigma of the first pass's residuals (sigma per axis = median
+        distance / 1.1774 for Gaussian errors), at most the first pass's
+        radius; a star lies beyond 3.5 sigma with probability 0.2 %.
+        """
+        if len(residuals) < 3:
+            return self.cfg.match_radius_px
+        sigma = float(np.median(residuals)) / 1.1774
+        return min(max(self.cfg.match_radius_px, 3.5 * sigma), self._first_radius())
+
+    def _verify(self, hyp: Hypothesis, camera: CameraModel, xy, trials: float):
+        """Check a hypothesis against the database stars; (R, prob, f_px) or None."""
         cfg = self.cfg
-        db_idx, pred = self._db_proj.predict(R)
-        which, _ = match_nearest(xy, pred, cfg.match_radius_px)
+        cam = dataclasses.replace(camera, f_px=hyp.f_px)
+        db_idx, pred = self._db_proj.predict(hyp.R, cam)
+        which, _ = match_nearest(xy, pred, self._first_radius())
         ok = which >= 0
-        matched = int(np.count_nonzero(ok))
-        if matched < cfg.min_matched:
+        if np.count_nonzero(ok) < cfg.min_matched:
             return None
-        R = solve_wahba(vec[ok], self.bound.vectors[db_idx[which[ok]]])
-        db_idx, pred = self._db_proj.predict(R)
-        which, _ = match_nearest(xy, pred, cfg.match_radius_px)
-        ok = which >= 0
-        matched = int(np.count_nonzero(ok))
-        # three stars made the hypothesis; the others are the evidence
-        prob = false_match_probability(matched - 3, len(xy) - 3, len(pred),
-                                       cfg.match_radius_px, self._area, hypotheses)
+        fit = fit_frame(xy[ok], self.bound.vectors[db_idx[which[ok]]], hyp.R, cam,
+                        self._lens_only_f(cam), cfg.centroid_sigma_px)
+        radius = self._final_radius(fit.residuals)
+        db_idx, pred = self._db_proj.predict(fit.R, fit.camera)
+        which, _ = match_nearest(xy, pred, radius)
+        matched = int(np.count_nonzero(which >= 0))
+        # four stars made the hypothesis; the others are the evidence
+        prob = false_match_probability(matched - 4, len(xy) - 4, len(pred), radius,
+                                       self._area, trials)
         if matched < cfg.min_matched or prob >= cfg.max_prob_false:
             return None
-        return R, prob, hypotheses
+        return fit.R, prob, fit.camera.f_px
+
+    def _lens_only_f(self, camera: CameraModel) -> LensPrior:
+        """A prior leaving f free (a tenth of itself) and holding k1 where it is."""
+        return LensPrior(f_px=camera.f_px, sigma_f_px=0.1 * camera.f_px, k1=camera.k1,
+                         sigma_k1=1e-9)
 
     def _photometric_check(self, ok, which, cat_idx, flux) -> None:
         """Unmatch stars whose catalogue magnitude disagrees with their flux.
@@ -319,36 +457,64 @@ class Solver:
         off = np.abs(diff - np.median(diff)) > self.cfg.mag_tolerance
         ok[rows[off]] = False
 
-    def _finish(self, R, prob, hypotheses, xy, vec, flux, idx, hip, t_ns, mode
-                ) -> Solution | None:
-        """Refine against the whole catalogue, compute sigmas, update the tracking state.
-
-        ``prob`` None (tracking) means: verify here, with the refined matches;
-        returns None if they do not verify.
-        """
-        cat_idx, pred = self._cat_proj.predict(R)
-        which, _ = match_nearest(xy, pred, self.cfg.match_radius_px)
+    def _match_catalogue(self, R, camera, xy, flux, radius: float):
+        """(ok mask, which, cat_idx, predictions) of the image stars against the catalogue."""
+        cat_idx, pred = self._cat_proj.predict(R, camera, beta=self._beta)
+        which, _ = match_nearest(xy, pred, radius)
         ok = which >= 0
         self._photometric_check(ok, which, cat_idx, flux)
+        return ok, which, cat_idx, pred
+
+    def _finish(self, R, prob, xy, flux, idx, hip, t_ns, mode, budget, f_px
+                ) -> Solution | None:
+        """Refine against the catalogue, fit the lens, update the state (module docstring).
+
+        ``prob`` None (tracking) means: verify here, with the refined matches;
+        returns None if they do not verify. ``f_px``: the focal length lost in
+        space found with ``R`` (None: the filtered lens's).
+        """
+        cfg = self.cfg
+        camera = self.lens_camera()
+        if f_px is not None:
+            camera = dataclasses.replace(camera, f_px=f_px)
+        if mode == "tracking":
+            # the filtered lens and the tracked attitude are good: one pass, at the
+            # radius the last frame's residuals gave
+            radius = self._radius
+        else:
+            ok, which, cat_idx, _ = self._match_catalogue(R, camera, xy, flux,
+                                                          self._first_radius())
+            if np.count_nonzero(ok) < 4:
+                return None
+            first = fit_frame(xy[ok], self._seen(cat_idx[which[ok]]), R, camera,
+                              self._prior, cfg.centroid_sigma_px)
+            R, camera, radius = first.R, first.camera, self._final_radius(first.residuals)
+        ok, which, cat_idx, pred = self._match_catalogue(R, camera, xy, flux, radius)
         n = int(np.count_nonzero(ok))
         if prob is None:
-            prob = false_match_probability(n, len(xy), len(pred), self.cfg.match_radius_px,
-                                           self._area, 1)
-            if n < self.cfg.min_matched or prob >= self.cfg.max_prob_false:
+            prob = false_match_probability(n, len(xy), len(pred), radius, self._area, 1)
+            if n < cfg.min_matched or prob >= cfg.max_prob_false:
                 return None
-        if n < 3:
+        if n < 4:
             return None
-        obs = vec[ok]
-        ref = self._cat_vectors[cat_idx[which[ok]]]
+        ref = self._seen(cat_idx[which[ok]])
+        frame = fit_frame(xy[ok], ref, R, camera, self._prior, cfg.centroid_sigma_px)
+        self._radius = self._final_radius(frame.residuals)
+        self.lens.update(frame, t_ns)
+        state = self.lens.state()
+        lens_cam = dataclasses.replace(self.camera, f_px=state.f_px, k1=state.k1)
+        obs = lens_cam.pixel_to_vector(xy[ok])
         R = solve_wahba(obs, ref)
         resid2 = float(np.square(obs - ref @ R.T).sum())
-        sigma = math.sqrt((resid2 + _PRIOR_DOF * self._sigma0 ** 2)
+        sigma0 = cfg.centroid_sigma_px / lens_cam.f_px
+        sigma = math.sqrt((resid2 + _PRIOR_DOF * sigma0 ** 2)
                           / max(1.0, 2 * n - 3 + _PRIOR_DOF))
         P = attitude_covariance(obs, sigma)
         hip[idx[ok]] = self._cat_hip[cat_idx[which[ok]]]
-        ra, dec, roll = radec_roll_from_matrix(self._to_centre @ R)
+        ra, dec, roll = radec_roll_from_matrix(_centre_rotation(lens_cam) @ R)
         rate = None
-        if self._last_R is not None and self._last_t is not None and t_ns > self._last_t:
+        if self._last_R is not None and self._last_t is not None and \
+                0 < t_ns - self._last_t <= self.cfg.track_max_gap_s * 1e9:
             new_rate = rotation_vector(R @ self._last_R.T) / ((t_ns - self._last_t) / 1e9)
             # average with the previous estimate: halves the noise of a steady rate
             self._rate = new_rate if self._rate is None else 0.5 * (self._rate + new_rate)
@@ -363,8 +529,22 @@ class Solver:
             matched=n, sigma_cross_arcsec=math.sqrt(P[0, 0] + P[1, 1]) * _ARCSEC,
             sigma_roll_arcsec=math.sqrt(P[2, 2]) * _ARCSEC,
             residual_arcsec=math.sqrt(resid2 / n) * _ARCSEC, rate_rad_s=rate,
-            prob_false=prob, hypotheses=hypotheses, stages_ms=dict(self._timer.ms))
+            prob_false=prob, focal_length_mm=frame.camera.f_px * self._mm_per_px,
+            sigma_focal_length_mm=math.sqrt(frame.cov[0, 0]) * self._mm_per_px,
+            lens=self._lens_report(state),
+            patterns=budget.patterns if budget else 0,
+            hypotheses=budget.hypotheses if budget else 0, stages_ms=dict(self._timer.ms))
 
-    def _fail(self, reason: str, hip: np.ndarray) -> Solution:
+    def _lens_report(self, state: LensState) -> LensReport:
+        mm = self._mm_per_px
+        return LensReport(focal_length_mm=state.f_px * mm, sigma_focal_length_mm=state.sigma_f_px
+                          * mm, k1=state.k1, sigma_k1=state.sigma_k1,
+                          drift_ppm=1e6 * (state.f_px / self._prior.f_px - 1.0),
+                          frames=state.frames)
+
+    def _fail(self, reason: str, hip: np.ndarray, budget: WorkBudget | None = None) -> Solution:
         self._timer.stop()
-        return Solution(ok=False, reason=reason, hip=hip, stages_ms=dict(self._timer.ms))
+        return Solution(ok=False, reason=reason, hip=hip,
+                        patterns=budget.patterns if budget else 0,
+                        hypotheses=budget.hypotheses if budget else 0,
+                        stages_ms=dict(self._timer.ms))

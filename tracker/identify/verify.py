@@ -1,8 +1,8 @@
 """Match image stars to catalogue stars predicted by an attitude; the false-match odds.
 
 Projection: catalogue stars within the field's half-diagonal of the
-boresight go through the camera model; those landing in the image are the
-predictions. Each image star takes the nearest prediction within a radius
+optical axis go through the camera model; those landing in the image are
+the predictions. Each image star takes the nearest prediction within a radius
 (in pixels); a prediction claimed twice goes to the nearer star.
 
 Probability that a wrong attitude verifies (the model behind ``prob_false``):
@@ -11,8 +11,11 @@ image stars, so each of the ``n`` image stars that were not used to form the
 hypothesis falls within ``r`` pixels of one of the ``m`` predictions with
 probability p = min(1, m * pi r^2 / (W H)) (uniform positions). The chance
 that ``k`` or more of them match is the binomial tail
-P(X >= k | n, p). Every hypothesis tried in the frame is another chance, so
-the per-frame probability is bounded by ``hypotheses * tail`` (union bound).
+P(X >= k | n, p). Every wrong hypothesis met in the frame is another
+chance, so the per-frame probability is bounded by ``trials * tail`` (union
+bound), where ``trials`` is the expected number of wrong hypotheses: in
+lost in space the catalogue patterns whose code fell in a lookup's box by
+chance (tracker.identify.lost.WorkBudget.chance), in tracking one.
 """
 
 from __future__ import annotations
@@ -21,34 +24,55 @@ import math
 
 import numpy as np
 
+from tracker.astrometry.aberration import aberrate
 from tracker.camera import CameraModel
+from tracker.identify.skyindex import DecSorted
 
 __all__ = ["Projector", "match_nearest", "binomial_tail", "false_match_probability"]
 
 
 class Projector:
-    """Predicts where catalogue stars fall in the image for an attitude R.
+    """Predicts where catalogue stars fall in the image for an attitude R and a lens.
 
     ``vectors`` (N, 3) are ICRS unit vectors (the catalogue's or the
-    database's); ``margin_px`` keeps predictions this far inside the image.
+    database's). Only stars in the declination band of the field are
+    looked at (tracker.identify.skyindex).
     """
 
-    def __init__(self, camera: CameraModel, vectors: np.ndarray, margin_px: float = 0.0
-                 ) -> None:
-        self.camera = camera
+    def __init__(self, vectors: np.ndarray) -> None:
         self.vectors = np.ascontiguousarray(vectors, dtype=np.float64)
-        self.margin_px = margin_px
-        # half-diagonal plus a pixel of slack
-        self._cos_half = math.cos(camera.fov_diagonal_rad / 2 + 2.0 / camera.f_px)
-        self._dots = np.empty(len(self.vectors))
+        self.index = DecSorted(self.vectors)
 
-    def predict(self, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Indices (into ``vectors``) and pixel positions (m, 2) of stars in the image."""
-        np.dot(self.vectors, R[2], out=self._dots)
-        near = np.flatnonzero(self._dots > self._cos_half)
-        cam = self.vectors[near] @ R.T
-        pix = self.camera.vector_to_pixel(cam)
-        inside = self.camera.in_frame(pix, self.margin_px)
+    @staticmethod
+    def _cone_radius(camera: CameraModel) -> float:
+        """An angle from the optical axis beyond every image corner.
+
+        The farthest corner's distance from the principal point, undistorted
+        to first order (rho / (1 + k1 rho^2 + k2 rho^4), exact for k1 = k2 = 0),
+        1 % and two pixels added: distortion that bends it more than 1 % at
+        the corner is far beyond any lens the solver serves.
+        """
+        dx = max(camera.cx + 0.5, camera.width - 0.5 - camera.cx)
+        dy = max(camera.cy + 0.5, camera.height - 0.5 - camera.cy)
+        rho = math.hypot(dx, dy) / camera.f_px
+        r2 = rho * rho
+        rho /= max(0.5, 1.0 + r2 * (camera.k1 + camera.k2 * r2))
+        return 1.01 * math.atan(rho) + 2.0 / camera.f_px
+
+    def predict(self, R: np.ndarray, camera: CameraModel, margin_px: float = 0.0,
+                beta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Indices (into ``vectors``) and pixel positions (m, 2) of stars in the image.
+
+        ``margin_px`` keeps predictions this far inside the image. With
+        ``beta`` (the observer's velocity / c, ICRS) the stars are placed at
+        their apparent directions (tracker.astrometry.aberration; at most 25
+        arcsec from the astrometric ones, inside the cone's two pixels of
+        slack) and ``R`` is the ICRS attitude.
+        """
+        near = np.sort(self.index.cone(R[2], self._cone_radius(camera)))
+        seen = self.vectors[near] if beta is None else aberrate(self.vectors[near], beta)
+        pix = camera.vector_to_pixel(seen @ R.T)
+        inside = camera.in_frame(pix, margin_px)
         return near[inside], pix[inside]
 
 
@@ -115,12 +139,12 @@ def binomial_tail(k: int, n: int, p: float) -> float:
 
 
 def false_match_probability(matched_extra: int, tested: int, predictions: int, radius_px: float,
-                            area_px: float, hypotheses: int) -> float:
+                            area_px: float, trials: float) -> float:
     """Per-frame probability that a wrong attitude gives this many matches (module docstring).
 
     ``matched_extra`` of the ``tested`` image stars outside the hypothesis
     matched one of ``predictions`` catalogue stars within ``radius_px``;
-    ``hypotheses`` were tried in the frame.
+    ``trials`` wrong hypotheses may have been met in the frame.
     """
     p = min(1.0, predictions * math.pi * radius_px * radius_px / area_px)
-    return min(1.0, max(1, hypotheses) * binomial_tail(matched_extra, tested, p))
+    return min(1.0, trials * binomial_tail(matched_extra, tested, p))

@@ -9,19 +9,24 @@ The contract is docs/protocol.md (the ICD); this package implements it.
 - :mod:`~tracker.protocol.framing`: CCSDS sync marker + space-packet
   primary header + CRC-16/CCITT-FALSE, big-endian.
 - :mod:`~tracker.protocol.encoder` / :mod:`~tracker.protocol.decoder`:
-  frames out; a streaming decoder that resynchronises after noise and
+  packets out; a streaming decoder that resynchronises after noise and
   counts what it drops, never raising on wire bytes.
 - :mod:`~tracker.protocol.link`: the tracker's end of the UART (pyserial):
-  a paced writer thread with a bounded priority queue, a command reader,
-  reopening with backoff. The service implements :class:`CommandHandler`.
+  a paced writer thread with a bounded queue per class (ATTITUDE first), a
+  command reader that answers every command, reopening with backoff. The
+  daemon implements :class:`CommandHandler` (tracker.daemon.link).
 - :mod:`~tracker.protocol.budget`: what fits at a baud rate.
+- :mod:`~tracker.protocol.nullmodem`: pseudo-terminals standing in for the
+  cable (demo, benchmarks, tests).
 
-The service's use::
+Words: a *packet* is one unit on the wire; a *frame* is a camera image.
+
+The daemon's use::
 
     from tracker.protocol import Link, Mode, Reason
 
     with Link(cfg.link, handler) as link:        # handler: a CommandHandler
-        link.send_attitude(frame_id=n, t_ns=t, q=q, sigma_xy_arcsec=s1,
+        link.send_attitude(frame_id=n, t_ns=t, q=q, sigma_cross_arcsec=s1,
                            sigma_roll_arcsec=s2, matched=m, mode=Mode.TRACKING)
         link.send_centroids(n, t, stars)          # x, y, flux, hip, flags rows
         link.send_status(uptime_s=..., ...)       # STATUS fields

@@ -10,7 +10,7 @@ from __future__ import annotations
 from tracker.protocol.framing import OVERHEAD
 from tracker.protocol.messages import BY_ID, MAX_STARS_PER_PACKET, MsgId
 
-__all__ = ["BITS_PER_BYTE", "bytes_per_second", "frame_bytes", "centroid_frame_bytes",
+__all__ = ["BITS_PER_BYTE", "bytes_per_second", "packet_bytes", "centroids_bytes",
            "load_bytes_per_second"]
 
 BITS_PER_BYTE = 10
@@ -21,21 +21,21 @@ def bytes_per_second(baudrate: float) -> float:
     return baudrate / BITS_PER_BYTE
 
 
-def frame_bytes(msg_id: int, items: int = 0) -> int:
-    """Bytes on the wire of one frame of msg_id carrying items repeated items."""
+def packet_bytes(msg_id: int, items: int = 0) -> int:
+    """Bytes on the wire of one packet of msg_id carrying items repeated items."""
     msg = BY_ID[MsgId(msg_id)]
     return OVERHEAD + msg.min_size + items * msg.item_size
 
 
-def centroid_frame_bytes(stars: int) -> int:
-    """Bytes on the wire of all CENTROIDS parts for one frame of stars stars."""
+def centroids_bytes(stars: int) -> int:
+    """Bytes on the wire of all CENTROIDS parts for one image frame with ``stars`` stars."""
     parts = max(1, -(-stars // MAX_STARS_PER_PACKET))
-    return parts * frame_bytes(MsgId.CENTROIDS) + stars * BY_ID[MsgId.CENTROIDS].item_size
+    return parts * packet_bytes(MsgId.CENTROIDS) + stars * BY_ID[MsgId.CENTROIDS].item_size
 
 
 def load_bytes_per_second(attitude_hz: float, centroids_hz: float, status_hz: float,
                           stars: int) -> float:
     """Telemetry bytes per second at these output rates with stars per CENTROIDS frame."""
-    return (attitude_hz * frame_bytes(MsgId.ATTITUDE)
-            + centroids_hz * centroid_frame_bytes(stars)
-            + status_hz * frame_bytes(MsgId.STATUS))
+    return (attitude_hz * packet_bytes(MsgId.ATTITUDE)
+            + centroids_hz * centroids_bytes(stars)
+            + status_hz * packet_bytes(MsgId.STATUS))

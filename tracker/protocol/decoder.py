@@ -7,19 +7,19 @@ Algorithm (the ICD's "resynchronisation" section says the same):
    expected type bit, no secondary header, sequence flags 0b11, payload no
    longer than the largest message of that direction). If not, discard one
    byte and search again.
-3. Wait for the whole frame, then check the CRC. If it fails, discard one
-   byte (not the frame: a false ASM in noise may claim bytes that hold a
-   real frame) and search again.
-4. With a good CRC the frame is consumed. An unknown id, a wrong length or
+3. Wait for the whole packet, then check the CRC. If it fails, discard one
+   byte (not the packet: a false ASM in noise may claim bytes that hold a
+   real packet) and search again.
+4. With a good CRC the packet is consumed. An unknown id, a wrong length or
    (when validating) an out-of-range field drops the packet with that reason.
 
 It never raises on input bytes, and its buffer never exceeds one chunk
-(4096 bytes) plus the largest frame. Counters (:attr:`StreamDecoder.counters`):
+(4096 bytes) plus the largest packet. Counters (:attr:`StreamDecoder.counters`):
 ``packets`` delivered, ``bad_header`` (plausibility failures), ``bad_crc``,
-``unknown_id``, ``wrong_length``, ``out_of_range``, ``truncated`` (a frame
+``unknown_id``, ``wrong_length``, ``out_of_range``, ``truncated`` (a packet
 still unfinished at :meth:`StreamDecoder.flush`), and ``bytes_dropped``
 (every byte not in a delivered packet: bytes fed = bytes_dropped + the
-frame bytes of delivered packets + the bytes still buffered).
+bytes of delivered packets + the bytes still buffered).
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ class Packet:
     seq: int
     values: dict
     items: np.ndarray | None
-    frame: bytes
+    wire: bytes          # the whole packet as received: ASM, header, payload, CRC
 
     @property
     def id(self) -> int:
@@ -59,7 +59,7 @@ class Packet:
 
 @dataclass
 class Rejection:
-    """A frame with a plausible header that was dropped, and why (the tracker NACKs it)."""
+    """A packet with a plausible header that was dropped, and why (the tracker NACKs it)."""
 
     apid: int
     seq: int
@@ -67,16 +67,16 @@ class Rejection:
 
 
 class StreamDecoder:
-    """Decode frames of one direction from a byte stream.
+    """Decode packets of one direction from a byte stream.
 
     Parameters
     ----------
     direction : Direction
-        Which frames to accept: TM (the FC's side) or TC (the tracker's side).
+        Which packets to accept: TM (the FC's side) or TC (the tracker's side).
     validate : bool
         Check fields against their valid ranges (commands have them).
     keep_rejects : bool
-        Also return a :class:`Rejection`, in stream order, for each frame
+        Also return a :class:`Rejection`, in stream order, for each packet
         whose header was plausible but which is dropped for BAD_CRC,
         UNKNOWN_ID, WRONG_LENGTH or OUT_OF_RANGE: the tracker NACKs these.
     """
@@ -103,10 +103,10 @@ class StreamDecoder:
         return out
 
     def flush(self) -> list[Packet | Rejection]:
-        """End of stream: no more bytes will come, so an unfinished frame is truncated.
+        """End of stream: no more bytes will come, so an unfinished packet is truncated.
 
         Each one is counted as ``truncated``, one byte is dropped, and the
-        search goes on in the bytes after it (which may hold whole frames).
+        search goes on in the bytes after it (which may hold whole packets).
         """
         out: list[Packet | Rejection] = []
         self._scan(out, eof=True)
@@ -130,7 +130,7 @@ class StreamDecoder:
                 break
             dropped += i - pos
             pos = i
-            end = self._frame_at(buf, i, eof, out)
+            end = self._packet_at(buf, i, eof, out)
             if end == 0:
                 break
             if end < 0:
@@ -141,8 +141,8 @@ class StreamDecoder:
         self.counters["bytes_dropped"] += dropped
         del buf[:pos]
 
-    def _frame_at(self, buf: bytearray, i: int, eof: bool, out: list) -> int:
-        """Take the frame whose ASM is at i: its end if consumed, 0 to wait, -1 to skip a byte."""
+    def _packet_at(self, buf: bytearray, i: int, eof: bool, out: list) -> int:
+        """Take the packet whose ASM is at i: its end if consumed, 0 to wait, -1 to skip a byte."""
         short = len(buf) - i < len(ASM) + HEADER.size
         hdr = None if short else parse_header(*HEADER.unpack_from(buf, i + len(ASM)))
         if not short and (hdr is None or hdr[1] != self.direction or hdr[3] > self.max_payload):
@@ -167,7 +167,7 @@ class StreamDecoder:
         return end
 
     def _parse(self, out: list, apid: int, seq: int, payload: bytes,
-               frame: bytes) -> Packet | None:
+               wire: bytes) -> Packet | None:
         msg = self._defs.get(apid)
         if msg is None:
             self._reject(out, apid, seq, Reason.UNKNOWN_ID)
@@ -178,4 +178,4 @@ class StreamDecoder:
             self._reject(out, apid, seq, exc.reason)
             return None
         self.counters["packets"] += 1
-        return Packet(msg, seq, values, items, frame)
+        return Packet(msg, seq, values, items, wire)

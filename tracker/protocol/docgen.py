@@ -15,21 +15,25 @@ from pathlib import Path
 
 from tracker.protocol.budget import (
     bytes_per_second,
-    centroid_frame_bytes,
-    frame_bytes,
+    centroids_bytes,
     load_bytes_per_second,
+    packet_bytes,
 )
 from tracker.protocol.framing import OVERHEAD
 from tracker.protocol.messages import (
+    ERROR_MEANING,
     MAX_STARS_PER_PACKET,
     MESSAGES,
     TYPES,
     AttitudeFlag,
+    Correction,
     Direction,
+    ErrorCode,
     MessageDef,
     Mode,
     MsgId,
     Reason,
+    TimeSource,
 )
 
 __all__ = ["render_sections", "render_c_header", "apply_sections"]
@@ -65,40 +69,51 @@ def _message_section(m: MessageDef) -> list[str]:
                   f"Payload: {m.min_size} + {m.item_size} x count bytes "
                   f"({m.min_size} .. {m.max_size}).", ""]
     else:
-        lines += [f"Payload: {m.min_size} bytes; frame: {m.min_size + OVERHEAD} bytes.", ""]
+        lines += [f"Payload: {m.min_size} bytes; packet: {m.min_size + OVERHEAD} bytes.", ""]
     return lines
 
 
 def _ids() -> str:
-    rows = ["| id (APID) | name | dir | payload bytes | frame bytes | queue class |",
+    rows = ["| id (APID) | name | dir | payload bytes | packet bytes | queue class |",
             "|---|---|---|---:|---:|---|"]
     for m in MESSAGES:
         size = (f"{m.min_size}" if not m.item else f"{m.min_size} .. {m.max_size}")
-        frame = (f"{m.min_size + OVERHEAD}" if not m.item
-                 else f"{m.min_size + OVERHEAD} .. {m.max_size + OVERHEAD}")
+        packet = (f"{m.min_size + OVERHEAD}" if not m.item
+                  else f"{m.min_size + OVERHEAD} .. {m.max_size + OVERHEAD}")
         pri = "-" if m.priority is None else str(m.priority)
-        rows.append(f"| 0x{m.id:03X} | {m.name} | {m.direction.name} | {size} | {frame} | "
+        rows.append(f"| 0x{m.id:03X} | {m.name} | {m.direction.name} | {size} | {packet} | "
                     f"{pri} |")
     return "\n".join(rows)
+
+
+def _bits(flag) -> list:
+    """The single-bit members of an IntFlag (not its 0-valued NONE)."""
+    return [e for e in flag.__members__.values() if int(e)]
 
 
 def _enums() -> str:
     out = []
     for title, enum in (("Mode", Mode), ("Reason (ACK/NACK `code`)", Reason),
-                        ("AttitudeFlag (bits of ATTITUDE `flags`)", AttitudeFlag)):
+                        ("AttitudeFlag (bits of ATTITUDE `flags`; other bits are 0)",
+                         AttitudeFlag), ("TimeSource (STATUS `time_source`)", TimeSource),
+                        ("Correction (bits of STATUS `corrections`; other bits are 0)",
+                         _bits(Correction))):
         out += [f"**{title}**", "", "| value | name |", "|---:|---|"]
         out += [f"| {int(e)} | {e.name} |" for e in enum]
         out.append("")
-    return "\n".join(out).rstrip()
+    out += ["**ErrorCode (STATUS `last_error`)**", "", "| value | name | meaning |",
+            "|---:|---|---|"]
+    out += [f"| {int(e)} | {e.name} | {ERROR_MEANING[e]} |" for e in ErrorCode]
+    return "\n".join(out)
 
 
 def _budget() -> str:
-    att, st = frame_bytes(MsgId.ATTITUDE), frame_bytes(MsgId.STATUS)
+    att, st = packet_bytes(MsgId.ATTITUDE), packet_bytes(MsgId.STATUS)
     rows = [f"Usable bytes per second = baud / 10 (8N1) x {FRACTION} (bandwidth_fraction). "
-            f"ATTITUDE frame {att} B, STATUS {st} B, CENTROIDS for n stars "
-            f"= {frame_bytes(MsgId.CENTROIDS)} B per part of up to {MAX_STARS_PER_PACKET} "
-            f"+ {frame_bytes(MsgId.CENTROIDS, 1) - frame_bytes(MsgId.CENTROIDS)} B per star "
-            f"(48 stars: {centroid_frame_bytes(48)} B).", "",
+            f"ATTITUDE packet {att} B, STATUS {st} B, CENTROIDS for n stars "
+            f"= {packet_bytes(MsgId.CENTROIDS)} B per part of up to {MAX_STARS_PER_PACKET} "
+            f"+ {packet_bytes(MsgId.CENTROIDS, 1) - packet_bytes(MsgId.CENTROIDS)} B per star "
+            f"(48 stars: {centroids_bytes(48)} B).", "",
             "| baud | usable B/s | ATTITUDE alone, max Hz | CENTROIDS 48 stars alone, max Hz "
             "| ATT 30 Hz + STATUS 1 Hz + CENTROIDS 48 stars at | load |",
             "|---:|---:|---:|---:|---|---:|"]
@@ -107,7 +122,7 @@ def _budget() -> str:
         for cen_hz in (1.0, 10.0, 30.0):
             load = load_bytes_per_second(30.0, cen_hz, 1.0, 48)
             rows.append(f"| {baud} | {usable:.0f} | {usable / att:.0f} | "
-                        f"{usable / centroid_frame_bytes(48):.1f} | {cen_hz:g} Hz | "
+                        f"{usable / centroids_bytes(48):.1f} | {cen_hz:g} Hz | "
                         f"{100 * load / usable:.0f} % |")
     return "\n".join(rows)
 
@@ -182,16 +197,31 @@ def _c_parse(m: MessageDef) -> list[str]:
             ioff += TYPES[f.type][1]
         out.append("    }")
     for f in m.fields:
-        cond = []
-        if f.choices is not None:
-            cond.append(" && ".join(f"m->{f.name} != {c}u" for c in f.choices))
-        if f.lo is not None:
-            lit = f"{f.lo!r}f" if f.type == "f32" else f"{int(f.lo)}u"
-            hit = f"{f.hi!r}f" if f.type == "f32" else f"{int(f.hi)}u"
-            cond.append(f"!(m->{f.name} >= {lit} && m->{f.name} <= {hit})")
+        cond = _c_range_check(f)
         if cond:
-            out.append(f"    if ({' || '.join(cond)}) return ST_OUT_OF_RANGE;")
+            out.append(f"    if ({cond}) return ST_OUT_OF_RANGE;")
     return out + ["    return ST_OK;", "}", ""]
+
+
+def _c_literal(f, value) -> str:
+    if f.type == "f32":
+        return f"{float(value)!r}f"
+    return f"{int(value)}ull" if f.type == "u64" else f"{int(value)}u"
+
+
+def _c_range_check(f) -> str:
+    """The C condition that is true when field f of struct m is NOT valid ('' if any is)."""
+    if f.choices is not None:
+        return " && ".join(f"m->{f.name} != {c}u" for c in f.choices)
+    if f.lo is None:
+        return ""
+    inside = [f"m->{f.name} <= {_c_literal(f, f.hi)}"]
+    if f.type == "f32" or f.lo > 0:         # an unsigned field is never below 0
+        inside.insert(0, f"m->{f.name} >= {_c_literal(f, f.lo)}")
+    ok = " && ".join(inside)
+    if f.also:
+        ok = " || ".join([*(f"m->{f.name} == {_c_literal(f, a)}" for a in f.also), f"({ok})"])
+    return f"!({ok})"
 
 
 def _c_pack(m: MessageDef) -> list[str]:
@@ -315,6 +345,15 @@ def render_c_header() -> str:
     out += [f"    ST_{e.name} = {int(e)}," for e in Reason]
     out += ["};", "", "enum st_attitude_flag {"]
     out += [f"    ST_ATT_{e.name} = {int(e)}," for e in AttitudeFlag]
+    out += ["};", "", "/* STATUS.time_source: where the frames' absolute time comes from. */",
+            "enum st_time_source {"]
+    out += [f"    ST_TIME_{e.name} = {int(e)}," for e in TimeSource]
+    out += ["};", "", "/* Bits of STATUS.corrections: what the solver corrects. */",
+            "enum st_correction {"]
+    out += [f"    ST_CORR_{e.name} = {int(e)}," for e in _bits(Correction)]
+    out += ["};", "", "/* STATUS.last_error: the latest fault the tracker survived. */",
+            "enum st_error_code {"]
+    out += [f"    ST_ERR_{e.name} = {int(e)}, /* {ERROR_MEANING[e]} */" for e in ErrorCode]
     out += ["};", ""]
     for m in MESSAGES:
         out.append(f"#define ST_{m.name}_SIZE {m.min_size}u")

@@ -1,17 +1,17 @@
-"""Encoder: message values -> frames, with a sequence count per message id."""
+"""Encoder: message values -> packets, with a sequence count per message id."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from tracker.protocol.framing import SEQ_MODULO, build_frame
+from tracker.protocol.framing import SEQ_MODULO, build_packet
 from tracker.protocol.messages import BY_ID, MAX_STARS_PER_PACKET, Direction, MsgId
 
 __all__ = ["Encoder"]
 
 
 class Encoder:
-    """Builds frames; each message id has its own 14-bit sequence count (CCSDS).
+    """Builds packets; each message id has its own 14-bit sequence count (CCSDS).
 
     The tracker uses one with ``Direction.TM``; the flight computer (and
     ``tracker monitor``) one with ``Direction.TC``. Not thread-safe: one
@@ -23,21 +23,21 @@ class Encoder:
         self._seq: dict[int, int] = {}
 
     def encode(self, msg_id: int, items: np.ndarray | None = None, /, **values) -> bytes:
-        """One frame of message msg_id; values by field name (ValueError if one is bad)."""
+        """One packet of message msg_id; values by field name (ValueError if one is bad)."""
         msg = BY_ID[MsgId(msg_id)]
         if msg.direction != self.direction:
             raise ValueError(f"{msg.name} is {msg.direction.name}, this encoder sends "
                              f"{self.direction.name}")
         seq = self._seq.get(msg.id, 0)
         self._seq[msg.id] = (seq + 1) % SEQ_MODULO
-        return build_frame(msg.id, bool(self.direction), seq, msg.pack(values, items))
+        return build_packet(msg.id, bool(self.direction), seq, msg.pack(values, items))
 
     def centroids(self, frame_id: int, t_ns: int, stars: np.ndarray,
                   total: int | None = None) -> list[bytes]:
-        """CENTROIDS frames for stars (rows with x, y, flux, hip, flags), 40 per part.
+        """CENTROIDS packets for stars (rows with x, y, flux, hip, flags), 40 per part.
 
-        ``total`` is the number detected (default len(stars)); a frame with no
-        stars still gives one part with count 0.
+        ``total`` is the number detected (default len(stars)); an image frame with
+        no stars still gives one part with count 0.
         """
         n = len(stars)
         parts = max(1, -(-n // MAX_STARS_PER_PACKET))

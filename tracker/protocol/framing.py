@@ -1,6 +1,6 @@
 """Framing: sync marker, CCSDS space-packet primary header, payload, CRC.
 
-One frame on the wire (all big-endian)::
+One packet on the wire (the word "frame" is kept for camera images) (all big-endian)::
 
     ASM      4 bytes  0x1A 0xCF 0xFC 0x1D (CCSDS attached sync marker)
     header   6 bytes  CCSDS space packet primary header (CCSDS 133.0-B-2):
@@ -23,7 +23,7 @@ from __future__ import annotations
 import binascii
 import struct
 
-__all__ = ["ASM", "HEADER", "OVERHEAD", "SEQ_MODULO", "crc16", "build_frame", "parse_header"]
+__all__ = ["ASM", "HEADER", "OVERHEAD", "SEQ_MODULO", "crc16", "build_packet", "parse_header"]
 
 ASM = b"\x1a\xcf\xfc\x1d"
 HEADER = struct.Struct(">HHH")
@@ -38,7 +38,7 @@ def crc16(data: bytes) -> int:
     return binascii.crc_hqx(data, 0xFFFF)
 
 
-def build_frame(apid: int, telecommand: bool, seq: int, payload: bytes) -> bytes:
+def build_packet(apid: int, telecommand: bool, seq: int, payload: bytes) -> bytes:
     """ASM + primary header + payload + CRC for one packet."""
     header = HEADER.pack((int(telecommand) << 12) | (apid & 0x7FF),
                          (_UNSEGMENTED << 14) | (seq % SEQ_MODULO),

@@ -19,9 +19,13 @@ from functools import cached_property
 
 import numpy as np
 
+from tracker.astrometry.observer import VELOCITY_LIMIT_KM_S, Correction, TimeSource
+from tracker.astrometry.timescale import TAI_NS_MAX, TAI_NS_MIN
+
 __all__ = [
-    "Field", "MessageDef", "MsgId", "Mode", "Reason", "AttitudeFlag", "Direction",
-    "MESSAGES", "BY_ID", "TYPES", "MAX_STARS_PER_PACKET", "PayloadError",
+    "Field", "MessageDef", "MsgId", "Mode", "Reason", "AttitudeFlag", "ErrorCode",
+    "ERROR_MEANING", "Direction", "TimeSource", "Correction",
+    "MESSAGES", "BY_ID", "TYPES", "MAX_STARS_PER_PACKET", "PayloadError", "saturate",
 ]
 
 # wire type -> (struct code, size in bytes, C type, numpy big-endian dtype)
@@ -58,6 +62,7 @@ class MsgId(enum.IntEnum):
     PING = 0x024
     REQUEST_STATUS = 0x025
     TIME_SYNC = 0x026
+    SET_VELOCITY = 0x027
 
 
 class Mode(enum.IntEnum):
@@ -82,12 +87,44 @@ class Reason(enum.IntEnum):
 
 
 class AttitudeFlag(enum.IntFlag):
-    """Bits of ATTITUDE.flags."""
+    """Bits of ATTITUDE.flags; the other bits are reserved and sent as 0."""
 
     VALID = 1          # the quaternion and sigmas hold a solution for this frame
-    RATE_VALID = 2     # rate_x/y/z hold a measured angular rate
-    TIME_SYNCED = 4    # t_ns is on the FC's clock (after TIME_SYNC), else the tracker's
-    PREDICTED = 8      # propagated from earlier frames, not solved from this one
+    RATE_VALID = 2     # rate_x/y/z hold a rate measured over at most identify.track_max_gap_s
+    TIME_SYNCED = 4    # t_ns is TAI ns since 1970 (STATUS time_source: from where), else the
+    #                    tracker's monotonic clock
+    ANNUAL_ABERRATION = 8    # with VALID: corrected for the Earth's velocity (q is ICRS)
+    OBSERVER_VELOCITY = 16   # with VALID: also for the observer's velocity (SET_VELOCITY)
+
+
+class ErrorCode(enum.IntEnum):
+    """STATUS.last_error: the latest fault the tracker survived (:data:`ERROR_MEANING`)."""
+
+    NONE = 0
+    FRAME_UNREADABLE = 1
+    CAMERA_TIMEOUT = 2
+    CAMERA_LOST = 3
+    STAGE_ERROR = 4
+    LINK_ERROR = 5
+    RX_REJECT = 6
+    TX_DROP = 7
+    LINK_INTERNAL = 8
+
+
+# What each ErrorCode means; the ICD's table is rendered from this.
+ERROR_MEANING = {
+    ErrorCode.NONE: "no fault since the service started",
+    ErrorCode.FRAME_UNREADABLE: "a frame arrived broken (bad buffer, corrupt file); skipped",
+    ErrorCode.CAMERA_TIMEOUT: "no frame within the frame period + capture.timeout_s",
+    ErrorCode.CAMERA_LOST: "the camera is absent or failed; closed and reopened every "
+                           "service.retry_max_s at most",
+    ErrorCode.STAGE_ERROR: "detection or identification failed on a frame; that frame dropped",
+    ErrorCode.LINK_ERROR: "the serial port failed or would not open; reopened with backoff",
+    ErrorCode.RX_REJECT: "an FC packet was dropped or NACKed (header, CRC, id, length, range)",
+    ErrorCode.TX_DROP: "a telemetry packet or reply was shed (its queue full, or stale)",
+    ErrorCode.LINK_INTERNAL: "the link's own code failed while serving the FC; caught, "
+                             "the link goes on",
+}
 
 
 class PayloadError(ValueError):
@@ -109,21 +146,35 @@ class Field:
     lo: float | None = None
     hi: float | None = None
     choices: tuple[int, ...] | None = None
+    also: tuple[float, ...] = ()     # values valid outside lo .. hi (e.g. 0 = off)
+
+    def bounds(self) -> tuple[float | None, float | None]:
+        """lo and hi as the wire holds them: rounded to binary32 for f32 fields.
+
+        So a bound such as 0.01 accepts the FC's 0.01f, as the C check does.
+        """
+        if self.type != "f32":
+            return self.lo, self.hi
+        return tuple(None if b is None else float(np.float32(b)) for b in (self.lo, self.hi))
 
     def valid(self, value) -> bool:
         """True when value is allowed (NaN never is when a range is given)."""
+        if value in self.also:
+            return True
         if self.choices is not None and value not in self.choices:
             return False
-        if self.lo is not None and not value >= self.lo:
+        lo, hi = self.bounds()
+        if lo is not None and not value >= lo:
             return False
-        return not (self.hi is not None and not value <= self.hi)
+        return not (hi is not None and not value <= hi)
 
     def range_text(self) -> str:
         if self.choices is not None:
             return ", ".join(str(c) for c in self.choices)
-        if self.lo is not None and self.hi is not None:
-            return f"{self.lo:g} .. {self.hi:g}"
-        return ""
+        if self.lo is None or self.hi is None:
+            return ""
+        text = " .. ".join(str(b) if isinstance(b, int) else f"{b:g}" for b in (self.lo, self.hi))
+        return ", ".join([*(f"{a:g}" for a in self.also), text]) if self.also else text
 
 
 @dataclass(frozen=True)
@@ -181,7 +232,7 @@ class MessageDef:
                 raise ValueError(f"{self.name}: {n} items, at most {self.max_items}")
             vals[self.count_field] = n
         try:
-            head = self.head.pack(*(vals[f.name] for f in self.fields))
+            head = self.head.pack(*[vals[f.name] for f in self.fields])
         except KeyError as exc:
             raise ValueError(f"{self.name}: missing field {exc.args[0]}") from None
         except struct.error as exc:
@@ -225,8 +276,8 @@ def _f(name, type_, unit, doc, **kw) -> Field:
 
 
 _FRAME_ID = _f("frame_id", "u32", "", "frame counter since start, wraps at 2^32")
-_T_NS = _f("t_ns", "u64", "ns", "exposure mid-time (tracker monotonic clock, or FC clock "
-           "when TIME_SYNCED)")
+_T_NS = _f("t_ns", "u64", "ns", "exposure mid-point: TAI ns since 1970 when TIME_SYNCED, "
+           "else the tracker's monotonic clock (section 6)")
 _REPLY = (
     _f("cmd_id", "u16", "", "id (APID) of the command answered"),
     _f("cmd_seq", "u16", "", "sequence count of the command answered"),
@@ -242,7 +293,7 @@ MESSAGES: tuple[MessageDef, ...] = (
         _f("q_x", "f32", "", "quaternion x"),
         _f("q_y", "f32", "", "quaternion y"),
         _f("q_z", "f32", "", "quaternion z"),
-        _f("sigma_xy_arcsec", "f32", "arcsec", "1-sigma cross-boresight error"),
+        _f("sigma_cross_arcsec", "f32", "arcsec", "1-sigma cross-boresight error"),
         _f("sigma_roll_arcsec", "f32", "arcsec", "1-sigma error about the boresight"),
         _f("rate_x", "f32", "deg/s", "angular rate about camera +X; NaN unless RATE_VALID"),
         _f("rate_y", "f32", "deg/s", "angular rate about camera +Y; NaN unless RATE_VALID"),
@@ -250,7 +301,7 @@ MESSAGES: tuple[MessageDef, ...] = (
         _f("matched", "u16", "stars", "catalogue stars matched"),
         _f("mode", "u8", "", "Mode"),
         _f("flags", "u16", "", "AttitudeFlag bits"),
-    ), priority=1),
+    ), priority=0),
     MessageDef(MsgId.CENTROIDS, _TM, "star centroids of one frame, brightest first, "
                "split over parts", (
         _FRAME_ID, _T_NS,
@@ -273,33 +324,69 @@ MESSAGES: tuple[MessageDef, ...] = (
         _f("gain", "f32", "x", "analogue gain in use (factor)"),
         _f("cpu_temp_c", "f32", "degC", "SoC temperature; NaN if unknown"),
         _f("mode", "u8", "", "Mode"),
-        _f("frames", "u32", "", "frames processed"),
-        _f("capture_faults", "u32", "", "frames lost or unreadable"),
+        _f("frames", "u32", "", "frames received from the camera (processed, skipped in "
+           "STANDBY, or lost)"),
+        _f("capture_faults", "u32", "", "frames lost: unreadable, timed out, camera lost, "
+           "or dropped by a failing stage"),
         _f("solve_failures", "u32", "", "frames with stars but no attitude"),
-        _f("link_drops", "u32", "", "packets dropped by the link queue"),
+        _f("link_drops", "u32", "", "telemetry packets and replies the link shed (queue "
+           "full or stale)"),
         _f("link_reopens", "u16", "", "times the serial port was reopened"),
-        _f("rx_rejects", "u32", "", "FC frames dropped or NACKed"),
-        _f("last_error", "u16", "", "last error code, 0 = none (service defines codes)"),
+        _f("rx_rejects", "u32", "", "FC packets dropped or NACKed: implausible header, bad "
+           "CRC, unknown id, wrong length, out of range"),
+        _f("last_error", "u16", "", "ErrorCode of the latest fault, 0 = none since start"),
         _f("config_crc", "u32", "", "checksum of the effective configuration"),
+        _f("time_source", "u8", "", "TimeSource of the latest frame's absolute time "
+           "(before the first frame: what one would get now)"),
+        _f("corrections", "u8", "", "Correction bits the solver applies to the latest frame "
+           "(before the first frame: what it would apply now)"),
     ), priority=3),
-    MessageDef(MsgId.ACK, _TM, "command accepted", _REPLY, priority=0),
-    MessageDef(MsgId.NACK, _TM, "command refused; nothing changed", _REPLY, priority=0),
+    MessageDef(MsgId.ACK, _TM, "command accepted", _REPLY, priority=1),
+    MessageDef(MsgId.NACK, _TM, "command refused; nothing changed", _REPLY, priority=1),
     MessageDef(MsgId.SET_MODE, _TC, "change operating mode", (
         _f("mode", "u8", "", "Mode", choices=(Mode.STANDBY, Mode.LOST_IN_SPACE,
                                               Mode.TRACKING)),)),
     MessageDef(MsgId.SET_EXPOSURE, _TC, "set the exposure time", (
-        _f("exposure_us", "u32", "us", "exposure time", lo=10, hi=1_000_000),)),
+        _f("exposure_us", "u32", "us", "exposure time; clamped to the tracker's configured "
+           "limits", lo=10, hi=1_000_000),)),
     MessageDef(MsgId.SET_GAIN, _TC, "set the analogue gain", (
-        _f("gain", "f32", "x", "analogue gain factor", lo=1.0, hi=16.0),)),
+        _f("gain", "f32", "x", "analogue gain factor; clamped to the tracker's configured "
+           "limit", lo=1.0, hi=16.0),)),
     MessageDef(MsgId.SET_OUTPUT, _TC, "set one telemetry message's output rate", (
         _f("msg_id", "u16", "", "ATTITUDE, CENTROIDS or STATUS id",
            choices=(MsgId.ATTITUDE, MsgId.CENTROIDS, MsgId.STATUS)),
-        _f("rate_hz", "f32", "Hz", "output rate, 0 = off", lo=0.0, hi=100.0),
+        _f("rate_hz", "f32", "Hz", "output rate, 0 = off", lo=0.01, hi=100.0, also=(0.0,)),
     )),
     MessageDef(MsgId.PING, _TC, "link check; answered by ACK", ()),
     MessageDef(MsgId.REQUEST_STATUS, _TC, "ACK, then one STATUS at once", ()),
-    MessageDef(MsgId.TIME_SYNC, _TC, "FC clock at the first byte of this frame", (
-        _f("fc_time_ns", "u64", "ns", "FC time when the first ASM byte left its UART"),)),
+    MessageDef(MsgId.TIME_SYNC, _TC, "the FC's absolute time (TAI) at the first byte of "
+               "this packet", (
+        _f("fc_time_ns", "u64", "ns", "TAI ns since 1970-01-01T00:00:00 TAI when the first "
+           "ASM byte left the FC's UART (1972 .. 2200)", lo=TAI_NS_MIN, hi=TAI_NS_MAX),)),
+    MessageDef(MsgId.SET_VELOCITY, _TC, "the observer's velocity relative to the Earth's "
+               "centre, for aberration (section 6.2)", (
+        _f("t_ns", "u64", "ns", "TAI ns since 1970 at which the velocity holds (1972 .. 2200)",
+           lo=TAI_NS_MIN, hi=TAI_NS_MAX),
+        _f("vx_km_s", "f32", "km/s", "along ICRS +X (RA 0, Dec 0)",
+           lo=-VELOCITY_LIMIT_KM_S, hi=VELOCITY_LIMIT_KM_S),
+        _f("vy_km_s", "f32", "km/s", "along ICRS +Y (RA 90 deg, Dec 0)",
+           lo=-VELOCITY_LIMIT_KM_S, hi=VELOCITY_LIMIT_KM_S),
+        _f("vz_km_s", "f32", "km/s", "along ICRS +Z (Dec +90 deg)",
+           lo=-VELOCITY_LIMIT_KM_S, hi=VELOCITY_LIMIT_KM_S),
+    )),
 )
 
 BY_ID: dict[int, MessageDef] = {m.id: m for m in MESSAGES}
+
+
+def saturate(msg_id: int, values: dict) -> dict:
+    """values with every integer field of msg_id clamped to its wire type (0 .. 2^bits - 1).
+
+    Counters and times saturate at their type's maximum instead of failing to
+    pack (ICD section 5.2); values of other fields pass unchanged.
+    """
+    out = dict(values)
+    for f in BY_ID[MsgId(msg_id)].fields:
+        if f.type != "f32" and f.name in out:
+            out[f.name] = min(max(int(out[f.name]), 0), (1 << (8 * TYPES[f.type][1])) - 1)
+    return out

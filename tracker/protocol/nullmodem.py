@@ -1,20 +1,54 @@
-"""Two pseudo-terminals joined back to back: a serial cable on one machine.
+"""Pseudo-terminals that stand in for the flight computer's serial cable.
 
 ``with NullModem() as (tracker_port, fc_port):`` gives two device paths;
 bytes written to one arrive at the other, through the kernel's tty layer
 (raw mode), as they would through a real cable. Used by ``tracker demo``,
 the soak benchmark and the tests, so the service's real pyserial code runs
 without serial hardware.
+
+:class:`ReplugPty` is one pty whose tracker end is reached through a
+symlink, as udev's ``/dev/fcu`` is; :meth:`ReplugPty.replug` swaps in a new
+pair, as pulling and replugging a USB-serial cable would.
 """
 
 from __future__ import annotations
 
 import os
+import pty
 import select
 import threading
 import tty
+from pathlib import Path
 
-__all__ = ["NullModem"]
+__all__ = ["NullModem", "ReplugPty"]
+
+
+class ReplugPty:
+    """The FC's end (``master``, non-blocking) of a pty reached through ``link_path``."""
+
+    def __init__(self, link_path: Path | str):
+        self.link_path = Path(link_path)
+        self.master, self._slave = self._new_pair()
+
+    def _new_pair(self) -> tuple[int, int]:
+        master, slave = pty.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        tmp = self.link_path.with_suffix(".new")
+        os.symlink(os.ttyname(slave), tmp)
+        os.replace(tmp, self.link_path)
+        return master, slave     # the slave is kept open so the node lives until opened
+
+    def replug(self) -> None:
+        """Close this pair (the tracker's reads fail) and put a new one behind the link."""
+        old = (self.master, self._slave)
+        self.master, self._slave = self._new_pair()
+        for fd in old:
+            os.close(fd)
+
+    def close(self) -> None:
+        os.close(self.master)
+        os.close(self._slave)
 
 
 class NullModem:

@@ -1,4 +1,4 @@
-"""The seed method's four noise models, on images scaled 0..1 (SEED-METHOD.md).
+"""The seed method's four noise models, on images scaled 0..1 (docs/seed-method.md).
 
 * ``gaussian_poisson`` (parameter: variance, default 0.15): add N(0, var),
   clip to 0..1, then photon noise: Poisson(255 * value) / 255, clip.

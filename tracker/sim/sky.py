@@ -7,6 +7,13 @@ photo-electrons (tracker.sim.photometry) and handed to
 smeared over the exposure (``SimConfig.smear``): positions at sub-steps
 no more than sigma/2 apart, the attitude R being the one at the exposure
 mid-point.
+
+With an absolute time (``t_tai_ns``) the stars are drawn where a moving
+observer sees them: aberrated (tracker.astrometry.aberration) by the
+Earth's barycentric velocity at that time plus the observer's velocity
+relative to the Earth's centre (``observer_velocity_km_s``, ICRS axes). The
+attitude R stays the ICRS attitude of the camera, the one the tracker
+reports.
 """
 
 from __future__ import annotations
@@ -15,6 +22,8 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from tracker.astrometry.aberration import aberrate, observer_beta
+from tracker.astrometry.timescale import check_tai_ns, utc_iso_from_tai_ns
 from tracker.attitude import quat_from_matrix, radec_roll_from_matrix
 from tracker.camera import CameraModel
 from tracker.config import CameraConfig, SimConfig
@@ -55,9 +64,9 @@ def _rate_rad_s(rate_deg_s) -> np.ndarray | None:
 def render_sky(camera, catalogue, R: np.ndarray, sim_cfg: SimConfig,
                rng: np.random.Generator, *, t_s: float = 0.0, rate_deg_s=None,
                noise_model: str | None = None, snr_db: float | None = None,
-               pixel_size_um: float | None = None,
-               bit_depth: int | None = None, psf: PsfShape | None = None,
-               scene: Scene | None = None) -> SimFrame:
+               pixel_size_um: float | None = None, bit_depth: int | None = None,
+               psf: PsfShape | None = None, scene: Scene | None = None,
+               t_tai_ns: int | None = None, observer_velocity_km_s=None) -> SimFrame:
     """Render the catalogue as seen at attitude ``R`` (v_cam = R @ v_icrs, mid-exposure).
 
     ``camera``: a CameraConfig (preferred; gives the pixel pitch and bit
@@ -70,6 +79,9 @@ def render_sky(camera, catalogue, R: np.ndarray, sim_cfg: SimConfig,
     ``psf`` overrides the configured PSF (tracker.sim.psf_shapes). ``scene``
     (tracker.sim.scene, realistic sensor model) adds its light and particle
     charge, and hides the stars whose centre it occludes.
+    ``t_tai_ns`` (TAI ns since 1970, tracker.astrometry.timescale) turns on
+    aberration, with ``observer_velocity_km_s`` (geocentric, ICRS, km/s;
+    None = at rest at the Earth's centre); both go into the truth.
     """
     model, pitch_um, depth = _camera_parts(camera, pixel_size_um, bit_depth)
     R = np.asarray(R, dtype=np.float64)
@@ -82,6 +94,9 @@ def render_sky(camera, catalogue, R: np.ndarray, sim_cfg: SimConfig,
     half = psf.half_width
 
     vectors = np.asarray(catalogue.vectors, dtype=np.float64)
+    if t_tai_ns is not None:
+        vectors = aberrate(vectors, observer_beta(check_tai_ns(t_tai_ns),
+                                                  observer_velocity_km_s))
     reach = model.fov_diagonal_rad / 2.0 + np.radians(2.0)
     if rate is not None:
         reach += float(np.linalg.norm(rate)) * exposure_s
@@ -126,6 +141,10 @@ def render_sky(camera, catalogue, R: np.ndarray, sim_cfg: SimConfig,
         for record, (x, y) in zip(frame.truth["stars"], mid, strict=True):
             record["x"], record["y"] = float(x), float(y)
     frame.R = R
+    if t_tai_ns is not None:
+        frame.truth.update(utc=utc_iso_from_tai_ns(t_tai_ns), observer_velocity_km_s=(
+            None if observer_velocity_km_s is None
+            else [float(v) for v in observer_velocity_km_s]))
     ra, dec, roll = radec_roll_from_matrix(R)
     frame.truth.update(
         q=[float(v) for v in quat_from_matrix(R)], ra_deg=float(np.degrees(ra)),
@@ -140,11 +159,13 @@ def render_sky(camera, catalogue, R: np.ndarray, sim_cfg: SimConfig,
 
 def render_sequence(camera, catalogue, R0: np.ndarray, sim_cfg: SimConfig,
                     rng: np.random.Generator, n_frames: int, *, fps: float | None = None,
-                    rate_deg_s=None, **kwargs) -> Iterator[SimFrame]:
+                    rate_deg_s=None, t_tai_ns: int | None = None,
+                    **kwargs) -> Iterator[SimFrame]:
     """Frames i = 0..n_frames-1 at t = i / fps of a constant-rate slew starting at R0.
 
     ``fps`` and ``rate_deg_s`` default to ``sim_cfg.fps`` and
-    ``sim_cfg.rate_deg_s``; other keywords go to :func:`render_sky`.
+    ``sim_cfg.rate_deg_s``; ``t_tai_ns`` is the first frame's absolute time
+    (later frames follow at 1 / fps); other keywords go to :func:`render_sky`.
     """
     fps = sim_cfg.fps if fps is None else float(fps)
     if not fps > 0:
@@ -153,5 +174,6 @@ def render_sequence(camera, catalogue, R0: np.ndarray, sim_cfg: SimConfig,
     rate = _rate_rad_s(rate_deg)
     for i in range(n_frames):
         t = i / fps
+        t_abs = None if t_tai_ns is None else t_tai_ns + round(t * 1e9)
         yield render_sky(camera, catalogue, attitude_at(R0, rate, t), sim_cfg, rng, t_s=t,
-                         rate_deg_s=rate_deg, **kwargs)
+                         rate_deg_s=rate_deg, t_tai_ns=t_abs, **kwargs)
