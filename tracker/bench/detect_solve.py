@@ -14,15 +14,17 @@ before every frame) solves:
   gives positions only).
 
 A solution is false when its boresight is more than 60 arcsec from the
-truth or its roll more than 0.1 deg off (tracker.bench.solve's rule).
+truth or its roll more than 0.1 deg off.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from tracker.attitude import attitude_error
 from tracker.bench.detect_peers import PEERS
-from tracker.bench.solve import _is_false
 from tracker.camera import CameraModel
 from tracker.detect import STAR_DTYPE, make_detector
 from tracker.identify import make_solver
@@ -30,6 +32,8 @@ from tracker.identify import make_solver
 __all__ = ["solve_sets", "aperture_flux"]
 
 _APERTURE = 3      # half-width of the peers' flux aperture, px
+_FALSE_CROSS_RAD = math.radians(60.0 / 3600.0)   # a solve this far off the truth is false
+_FALSE_ROLL_RAD = math.radians(0.1)              # ... or its roll this far
 
 
 def aperture_flux(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -60,7 +64,8 @@ def _outcome(solver, stars, R_true) -> str:
     sol = solver.solve(stars, 0)
     if not sol.ok:
         return "unsolved"
-    return "false" if _is_false(sol.R, R_true)[0] else "solved"
+    cross, roll = attitude_error(sol.R, R_true)
+    return "false" if cross > _FALSE_CROSS_RAD or abs(roll) > _FALSE_ROLL_RAD else "solved"
 
 
 def solve_sets(sets, cfg, catalogue, methods) -> dict:

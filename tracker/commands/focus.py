@@ -24,11 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tracker.capture.base import FrameError
-from tracker.capture.live import CameraError, make_source
-from tracker.cli import UserError
+from tracker.capture.backends import make_source
+from tracker.capture.base import FrameError, Waiting
+from tracker.capture.live import CameraError
+from tracker.commands.argtypes import count
 from tracker.config import Config
 from tracker.detect import make_detector
+from tracker.errors import UserError
 from tracker.focus import draw_map, focus_map, spread_over, terminal_lines, write_png
 
 __all__ = ["register", "run"]
@@ -53,7 +55,7 @@ def register(sub, common) -> None:
                    help="picture rewritten each frame (default focus.png)")
     p.add_argument("--grid", default="4x3", metavar="COLSxROWS",
                    help="cells across the field (default 4x3)")
-    p.add_argument("--frames", type=int, default=0, metavar="N",
+    p.add_argument("--frames", type=count, default=0, metavar="N",
                    help="stop after N frames (default 0: until Ctrl-C)")
     p.set_defaults(func=run)
 
@@ -74,6 +76,8 @@ def run(args, cfg: Config) -> int:
     try:
         with make_source(cfg, args.replay) as source:
             for item in source:
+                if isinstance(item, Waiting):     # a live camera between frames
+                    continue
                 if args.frames and shown >= args.frames:
                     break
                 shown += 1
