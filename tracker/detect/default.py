@@ -115,6 +115,8 @@ _STAR_ELLIPTICITY = 0.2        # ... and they are round
 _TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
 _TRACK_ELLIPTICITY = 0.3       # ... this elongated is a particle's track
 _TRACK_EXCESS = 0.35           # a spot this much more elongated than the frame's PSF ...
+_NARROW_WIDTH = 0.7            # a spot this narrow (its PSF's = 1), unsaturated, ...
+_NARROW_SNR = 50.0             # ... at this SNR is a particle's charge, not a star
 _SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
 _REMNANT_WIDTH = 0.85          # a spot this narrow and ...
 _REMNANT_ROUGH = 3.0           # ... this rough (x a point source's) is a track's remnant
@@ -736,8 +738,13 @@ class DefaultDetector:
             # over two pixels is as wide as a sharp PSF), a saturated one the more so (a
             # saturated star's clipped top is as round as its PSF)
             excess = v["ellipticity"] - self.psf.ellipticity
-            track |= (excess > _TRACK_EXCESS) | (
-                (v["raw_peak"] >= self.saturation) & (excess > _SATURATED_TRACK_EXCESS))
+            saturated = v["raw_peak"] >= self.saturation
+            track |= (excess > _TRACK_EXCESS) | (saturated & (excess > _SATURATED_TRACK_EXCESS))
+            # a bright spot well narrower than the frame's stars: a particle's charge
+            # diffused over a pixel or two, as wide as a sharp PSF (0.45 px against
+            # 0.6-0.8) but not as the frame's own; at SNR 50 a star's width is known
+            # to a few percent, and a lens's field varies it far less than this
+            track |= (width < _NARROW_WIDTH) & (v["snr"] >= _NARROW_SNR) & ~saturated
         narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
         sharp = judged & (narrow | (rough > self.cfg.rough_ratio))
         n_sharp = int(np.count_nonzero(sharp))
