@@ -740,11 +740,14 @@ class DefaultDetector:
             excess = v["ellipticity"] - self.psf.ellipticity
             saturated = v["raw_peak"] >= self.saturation
             track |= (excess > _TRACK_EXCESS) | (saturated & (excess > _SATURATED_TRACK_EXCESS))
-            # a bright spot well narrower than the frame's stars: a particle's charge
-            # diffused over a pixel or two, as wide as a sharp PSF (0.45 px against
-            # 0.6-0.8) but not as the frame's own; at SNR 50 a star's width is known
-            # to a few percent, and a lens's field varies it far less than this
-            track |= (width < _NARROW_WIDTH) & (v["snr"] >= _NARROW_SNR) & ~saturated
+            # a bright spot well narrower than the frame's stars across their narrowest
+            # axis (a trailed frame's stars are narrow across the trail): a particle's
+            # charge diffused over a pixel or two, as wide as a sharp PSF (0.45 px
+            # against 0.6-0.8) but not as the frame's own; at SNR 50 a star's width is
+            # known to a few percent, and a lens's field varies it far less than this
+            narrowest_psf = 1.0 - self.psf.ellipticity
+            track |= ((width < _NARROW_WIDTH * narrowest_psf) & (v["snr"] >= _NARROW_SNR)
+                      & ~saturated)
         narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
         sharp = judged & (narrow | (rough > self.cfg.rough_ratio))
         n_sharp = int(np.count_nonzero(sharp))
