@@ -205,6 +205,15 @@ CASES: list[tuple[str, list[str], int, str | None]] = [
     ("record-every-zero", ["record", "--out", "{tmp}/rec4", "--every", "0"], 2, "1 or more"),
     ("record-min-free-nan", ["record", "--out", "{tmp}/rec5", "--min-free-mb", "nan"], 2,
      "finite"),
+    # -- focus -------------------------------------------------------------------------------
+    ("focus-bad-frames", ["focus", "--replay", "{bad_frames}", "--png", "{tmp}/focus.png",
+                          "--config", "{yaml_small_camera}"], 0, None),
+    ("focus-bad-grid", ["focus", "--replay", "{bad_frames}", "--grid", "0x3"], 2, "1 to 32"),
+    ("focus-empty-folder", ["focus", "--replay", "{empty_dir}"], 2, "no image files"),
+    ("focus-png-in-a-file", ["focus", "--replay", "{bad_frames}", "--png", "{a_file}/f.png",
+                             "--config", "{yaml_small_camera}"], 2, "--png"),
+    ("focus-no-camera", ["focus", "--frames", "1"], 2, "no frames given"),
+    ("focus-frames-negative", ["focus", "--frames", "-1"], 2, None),
     # -- simulate ----------------------------------------------------------------------------
     ("simulate-out-is-a-file", ["simulate", "--out", "{a_file}"], 2, None),
     ("simulate-utc-2300", ["simulate", "--out", "{tmp}/sim", "--utc", "2300-01-01T00:00:00Z"],

@@ -193,9 +193,12 @@ def test_arrays_that_cannot_be_frames(array, message):
 
 def test_pipeline_converts_colour_as_replay_does(tmp_path):
     rng = np.random.default_rng(3)
-    bgr = rng.integers(0, 40, (96, 128, 3), dtype=np.uint8)
-    for x, y in ((30, 40), (90, 20), (60, 70)):
-        bgr[y - 1:y + 2, x - 1:x + 2] = (250, 200, 150)
+    bgr = rng.integers(0, 40, (96, 128, 3)).astype(np.float64)
+    rows, cols = np.mgrid[:96, :128]
+    for x, y in ((30, 40), (90, 20), (60, 70)):   # stars (a flat 3x3 box is a particle's)
+        spot = np.exp(-((cols - x) ** 2 + (rows - y) ** 2) / (2 * 1.2 ** 2))
+        bgr += spot[..., None] * (210, 160, 120)
+    bgr = np.clip(np.rint(bgr), 0, 255).astype(np.uint8)
     cv2.imwrite(str(tmp_path / "c.png"), bgr)
     grey, depth = read_image(tmp_path / "c.png")
     pipeline = Pipeline(load_config(None))

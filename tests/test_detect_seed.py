@@ -1,4 +1,4 @@
-"""The seed method (SEED-METHOD.md) and its baselines, on frames with known truth."""
+"""The seed method (docs/seed-method.md) and its baselines, on frames with known truth."""
 
 from __future__ import annotations
 

@@ -124,9 +124,10 @@ def test_image_solves_through_detector_and_solver(frame, focal_mm):
     """The whole per-frame pipeline on the real pixels, with the same rough camera.
 
     The openstartracker optics are sharper than the detector's default PSF
-    (sigma 0.7 px against 1.2 px: with the default, img0's star cores pass
-    for hot pixels and 4 sources are found); the configuration says so
-    until the detector measures the PSF itself.
+    (sigma 0.7 px against 1.2 px). img3 and img6 measure it on their stars
+    and solve without being told; img0's few faint 8-bit stars give six
+    usable PSF stars whose widths scatter 0.56-0.80 px, too few agree, and
+    with the 1.2 px start only 2 stars are found: the configuration says so.
     """
     sections = {"detect": {"psf_sigma_px": 0.7}} if frame.startswith("openstartracker") else {}
     cfg = rough_config(frame, focal_mm, **sections)

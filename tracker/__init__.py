@@ -28,6 +28,8 @@ Each frame flows one way::
   :class:`~tracker.astrometry.observer.Observer` (its absolute time and the
   observer's velocity) goes with it to the solver, which then reports the
   ICRS attitude.
+* :mod:`tracker.focus` maps the PSF's width across the field for
+  ``tracker focus``.
 * :mod:`tracker.sim` renders synthetic frames with truth;
   :mod:`tracker.catalogue` loads the bundled Hipparcos stars;
   :mod:`tracker.camera` maps pixels to directions.

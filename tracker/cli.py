@@ -36,6 +36,7 @@ COMMAND_MODULES = (
     "tracker.commands.bench",
     "tracker.commands.run",
     "tracker.commands.record",
+    "tracker.commands.focus",
     "tracker.commands.selftest",
     "tracker.commands.monitor",
     "tracker.commands.calibrate",

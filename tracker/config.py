@@ -105,8 +105,18 @@ class SimConfig:
         "realistic", "sensor model (realistic, none) or one of the seed method's 8-bit "
         "noise models", choices=("realistic", "none", "gaussian_poisson", "salt_pepper",
                                  "speckle", "glare"))
-    psf_sigma_px: float = knob(1.2, "Gaussian PSF sigma (M12 lens slightly defocused)", "px",
+    psf_sigma_px: float = knob(1.2, "PSF sigma (M12 lens slightly defocused); for other "
+                               "shapes, the sigma of the Gaussian of the same FWHM", "px",
                                min=0.2, max=20.0)
+    psf_shape: str = knob("gaussian", "PSF family: gaussian, moffat (broad wings) or airy "
+                          "(diffraction core and rings); tracker.sim.psf_shapes", "name",
+                          choices=("gaussian", "moffat", "airy"))
+    psf_beta: float = knob(3.0, "moffat: wing exponent beta (small = broad wings)", "",
+                           min=1.1, max=50.0)
+    psf_ellipticity: float = knob(0.0, "PSF ellipticity (a^2 - b^2) / (a^2 + b^2) of its "
+                                  "axes", "ratio", min=0.0, max=0.9)
+    psf_angle_deg: float = knob(0.0, "direction of the PSF's long axis from +x toward +y",
+                                "deg", min=-360.0, max=360.0)
     exposure_ms: float = knob(100.0, "exposure time", "ms", min=0.001, max=60000.0)
     f_number: float = knob(2.0, "lens focal ratio; aperture = focal length / f_number", "f/#",
                            min=0.5, max=64.0)
@@ -152,8 +162,18 @@ class SimConfig:
     speckle_variance: float = knob(0.15, "speckle: variance of the multiplicative mask "
                                    "(mean 1)", "(mask value)^2", min=0.0)
     snr_db: float | None = knob(None, "seed noise models: target image SNR (sets the model's "
-                                "strength); null = use its parameter as given", "dB",
+                                "strength, or the sky level: snr_sets); null = use its "
+                                "parameter and seed_sky as given", "dB",
                                 min=-40.0, max=60.0)
+    snr_sets: str = knob("parameter", "seed noise models: what a target snr_db sets: the "
+                         "model's parameter, or the sky level under the stars with the "
+                         "parameter as given (sky)", "name", choices=("parameter", "sky"))
+    seed_star_gain: float = knob(1.0, "seed noise models: factor on the stars' light before "
+                                 "the noise (a longer exposure of the photographed screen)",
+                                 "", min=1e-6, max=1e6)
+    seed_sky: float = knob(0.0, "seed noise models: sky level under the stars before the "
+                           "noise (a photographed screen's glow)", "fraction", min=0.0,
+                           max=1.0)
     smear: bool = knob(True, "integrate star motion within the exposure when slewing")
     fps: float = knob(10.0, "frame rate of simulated sequences", "Hz", min=0.001,
                       max=1000.0)
@@ -178,12 +198,33 @@ class DetectConfig:
                                    choices=(3, 5, 7, 9, 11, 13, 15))
     seed_threshold_frac: float = knob(0.3, "seed method: threshold as a fraction of the "
                                       "filtered image's maximum", "fraction", min=0.01, max=0.99)
-    psf_sigma_px: float = knob(1.2, "default: Gaussian PSF sigma of the optics (sets the "
-                               "matched filter and the centroid window)", "px",
-                               min=0.3, max=10.0)
-    threshold_sigma: float = knob(6.0, "default: detection threshold on the matched-filtered "
-                                  "image, in units of its background noise", "sigma",
-                                  min=1.0, max=1000.0)
+    psf_sigma_px: float = knob(1.2, "default: PSF sigma of the optics to start from (the "
+                               "Gaussian of the same FWHM); each frame's stars then measure "
+                               "it (psf_measure), and it sets the matched filter, the "
+                               "centroid window and the centroid fit", "px",
+                               min=0.45, max=3.5)
+    psf_measure: bool = knob(True, "default: measure the PSF on every frame from its bright, "
+                             "isolated, unsaturated stars (false: psf_sigma_px throughout)")
+    psf_min_stars: int = knob(5, "default: fewest agreeing stars for a frame's own PSF "
+                              "measurement (fewer: the previous estimate is kept)", "stars",
+                              min=1, max=64)
+    psf_min_peak_sigma: float = knob(10.0, "default: a star measures the PSF if its peak "
+                                     "pixel is this far above the background", "sigma",
+                                     min=3.0, max=1e6)
+    psf_memory_frames: int = knob(20, "default: frames whose agreeing PSF measurements are "
+                                  "averaged (1 = each frame alone); a measurement that "
+                                  "disagrees replaces the average at once", "frames",
+                                  min=1, max=100000)
+    false_alarms_per_frame: float = knob(0.1, "default: noise peaks a frame may report on "
+                                         "average; sets the detection threshold on the "
+                                         "matched-filtered image for the frame's size, PSF "
+                                         "and noise (tracker.detect.threshold)", "peaks",
+                                         min=1e-9, max=1000.0)
+    threshold_sigma: float | None = knob(None, "default: detection threshold on the "
+                                         "matched-filtered image, in units of its background "
+                                         "noise, instead of false_alarms_per_frame's (raised "
+                                         "for skewed noise either way)", "sigma",
+                                         min=1.0, max=1000.0)
     background_tile_px: int = knob(32, "default: side of the background grid's tiles", "px",
                                    min=4, max=4096)
     background_step_px: int = knob(4, "default: spacing of the pixels sampled in each "
@@ -220,6 +261,11 @@ class DetectConfig:
                                    "fraction of the PSF's (a cosmic-ray hit or track; a "
                                    "streaked star keeps the PSF's width)", "fraction",
                                    min=0.0, max=1.0)
+    rough_ratio: float = knob(12.0, "default: reject a spot whose pixel-scale roughness "
+                              "(Laplacian energy over energy) exceeds this multiple of a point "
+                              "source's under the frame's PSF (clusters of cosmic-ray hits and "
+                              "touching impulses; no image of the sky is rougher than a point)",
+                              "ratio", min=1.0, max=1e6)
     sharp_min_snr: float = knob(10.0, "default: apply the sharpness and elongation tests "
                                 "only above this SNR", "sigma", min=0.0, max=1e6)
     elongation_max: float = knob(0.3, "default: flag ELONGATED above this ellipticity of "
@@ -227,6 +273,15 @@ class DetectConfig:
     extended_ratio: float = knob(2.0, "default: flag EXTENDED an unsaturated source whose "
                                  "flux/peak (its effective area) exceeds this multiple of "
                                  "the frame's median", "ratio", min=1.0, max=100.0)
+    body_ratio: float = knob(5.0, "default: mask (do not report) a source whose flux/peak "
+                             "exceeds this multiple of the frame's median: a maximum on a "
+                             "ghost's disc, a planet or lit ground, as wide as the centroid "
+                             "window", "ratio", min=1.0, max=1000.0)
+    min_sky_sectors: int = knob(3, "default: mask a candidate with fewer of the eight sectors "
+                                "around it (3.5 PSF sigmas out) at the sky's level and noise: a "
+                                "bump on lit terrain, foliage or a planet's disc (0 = off; a "
+                                "star beside such a body keeps the sectors on the sky side)",
+                                "sectors", min=0, max=8)
     saturation_adu: float | None = knob(None, "default: level flagged SATURATED; null = "
                                         "full scale of the bit depth", "ADU", min=1.0)
     max_candidates: int = knob(2048, "default: local maxima examined per frame (brightest "

@@ -26,6 +26,7 @@ from tracker.capture import FrameError, ReplaySource, Waiting
 from tracker.commands.argtypes import non_negative
 from tracker.commands.outputs import close_output, open_output, output_folder
 from tracker.commands.progress import Progress
+from tracker.detect.psf import FWHM_PER_SIGMA
 from tracker.errors import UserError
 from tracker.overlay import render_overlay, write_overlay
 from tracker.pipeline import FrameResult, Pipeline
@@ -83,6 +84,11 @@ def frame_record(name: str, result: FrameResult) -> dict:
         record["solve_reason"] = result.solve_reason
     if det.counters:
         record["rejected"] = {k: int(v) for k, v in det.counters.items()}
+    if det.psf_sigma_px is not None:
+        record["psf"] = {"sigma_px": round(det.psf_sigma_px, 4),
+                         "fwhm_px": round(det.psf_sigma_px * FWHM_PER_SIGMA, 4),
+                         "ellipticity": round(det.psf_ellipticity, 4),
+                         "angle_deg": round(det.psf_angle_deg, 2), "stars": det.psf_stars}
     if result.observer.t_tai_ns is not None:
         record["observer"] = result.observer.to_json()
     return record

@@ -25,13 +25,30 @@ import cv2
 import numpy as np
 
 from tracker.detect.layout import PaddedLayout
+from tracker.normal import erf
 
 __all__ = ["BackgroundGrid", "QUANTISATION_NOISE_ADU"]
 
 QUANTISATION_NOISE_ADU = float(np.sqrt(1.0 / 12.0))
 _MEAN_ABS_IN_IQR = 0.3247  # E|z| for a standard normal z restricted to its middle half
 _ONE_SIGMA_ABOVE = 0.84134  # fraction of a Gaussian below mean + sigma
-_TRIMMED_STD = 0.909  # std / sigma of 64 Gaussian samples without their extremes
+_TRIM_FRACTION = 1.0 / 16.0  # trimmed noise: drop this fraction of samples at each end
+_DECILES_10_30 = 0.7573   # distance from a Gaussian's 10th to its 30th percentile, in sigma
+
+
+def _truncated_normal_std(p: float) -> float:
+    """Standard deviation of a unit normal without its lowest and highest fraction ``p``."""
+    a = float(-np.sqrt(2.0) * _erfinv(2.0 * p - 1.0))       # Phi^-1(1 - p)
+    pdf = float(np.exp(-0.5 * a * a) / np.sqrt(2.0 * np.pi))
+    return float(np.sqrt(1.0 - 2.0 * a * pdf / (1.0 - 2.0 * p)))
+
+
+def _erfinv(y: float) -> float:
+    """Inverse error function by Newton's method on tracker.normal.erf (|y| < 1)."""
+    x = 0.0
+    for _ in range(60):
+        x -= (float(erf(np.array(x))) - y) / (2.0 / np.sqrt(np.pi) * np.exp(-x * x))
+    return x
 
 
 def _tile_lattice(length: int, tiles: int, step: int) -> np.ndarray:
@@ -71,7 +88,9 @@ class BackgroundGrid:
         self.level_raw = np.zeros(self.grid_shape, np.float32)
         self.upper = np.zeros(self.grid_shape, np.float32)
         self._upper = int(round(_ONE_SIGMA_ABOVE * (m - 1)))
-        self.trim_dev = np.zeros((ny, nx, max(m - 2, 0)), np.float32)
+        self._trim = max(1, int(round(_TRIM_FRACTION * m)))
+        self._trimmed_std = _truncated_normal_std(self._trim / m)
+        self.trim_dev = np.zeros((ny, nx, max(m - 2 * self._trim, 0)), np.float32)
         self.trim_pow = np.zeros(self.trim_dev.shape, np.float32)
         self.moment2 = np.zeros(self.grid_shape, np.float32)
         self.moment3 = np.zeros(self.grid_shape, np.float32)
@@ -84,22 +103,29 @@ class BackgroundGrid:
         self.tile_scratch = np.zeros(int(capacity), np.int32)
 
     def stats(self, padded: np.ndarray, level: np.ndarray, noise: np.ndarray,
-              floor: float, upper: bool = False, minus: np.ndarray | None = None) -> None:
+              floor: float, upper: bool = False, minus: np.ndarray | None = None,
+              dark_side: np.ndarray | None = None) -> None:
         """Per-tile level and noise (grid shape, units of ``padded``) into the given arrays.
 
         ``padded`` is float32 or uint16. With ``minus`` (float32, padded like
         ``padded``) the statistics are those of ``padded - minus``, computed
-        on the sampled pixels only.
+        on the sampled pixels only. Tiles marked in ``dark_side`` (bool, grid
+        shape) take both from the darker part of their samples (the 6th to
+        37th percentile: level their mean, noise the 10th-30th percentile
+        distance over 0.757, its value for a Gaussian): a tile across a
+        horizon or the edge of glare then has the sky's level and noise,
+        not a blend of sky and ground.
 
         With ``upper`` the noise is also at least the distance from the level
         up to the 84.13th percentile, and at least the standard deviation of
-        the samples without their lowest and highest (divided by 0.909, its
+        the samples without their lowest and highest sixteenth (divided by 0.754, its
         value for Gaussian samples): noise with a long bright tail, or a
         background clipped at zero so that most pixels read exactly 0 (photon
         noise of a few counts), then gets the larger, honest figure, where the
         middle-half estimate would see no spread at all. For Gaussian noise
         all three agree.
         """
+        m = self.samples.shape[-1]
         if padded.dtype == self.int_samples.dtype:
             np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
             np.copyto(self.samples, self.int_samples)
@@ -110,6 +136,9 @@ class BackgroundGrid:
             np.subtract(self.samples, self.minus_samples, out=self.samples)
         self.samples.sort(axis=-1)
         np.mean(self.middle, axis=-1, out=self.level_raw)
+        if dark_side is not None and np.any(dark_side):
+            dark = self.samples[dark_side]
+            self.level_raw[dark_side] = dark[:, m // 16: 3 * m // 8].mean(axis=-1)
         self._smooth(self.level_raw, level)
         np.subtract(self.middle, self.level_raw[..., None], out=self.deviation)
         np.abs(self.deviation, out=self.deviation)
@@ -118,7 +147,7 @@ class BackgroundGrid:
         if upper:
             np.subtract(self.samples[..., self._upper], self.level_raw, out=self.upper)
             np.maximum(self.raw, self.upper, out=self.raw)
-            trimmed = self.samples[..., 1:-1]
+            trimmed = self.samples[..., self._trim:m - self._trim]
             np.mean(trimmed, axis=-1, out=self.upper)
             np.subtract(trimmed, self.upper[..., None], out=self.trim_dev)
             np.multiply(self.trim_dev, self.trim_dev, out=self.trim_pow)
@@ -126,10 +155,19 @@ class BackgroundGrid:
             np.multiply(self.trim_pow, self.trim_dev, out=self.trim_pow)
             np.mean(self.trim_pow, axis=-1, out=self.moment3)  # for skewness()
             np.sqrt(self.moment2, out=self.upper)
-            np.multiply(self.upper, 1.0 / _TRIMMED_STD, out=self.upper)
+            np.multiply(self.upper, 1.0 / self._trimmed_std, out=self.upper)
             np.maximum(self.raw, self.upper, out=self.raw)
+        if dark_side is not None and np.any(dark_side):
+            self._dark_side(dark_side)
         np.maximum(self.raw, floor, out=self.raw)
         self._smooth(self.raw, noise)
+
+    def _dark_side(self, dark_side: np.ndarray) -> None:
+        """Noise of the marked tiles from their 10th-30th percentile samples."""
+        m = self.samples.shape[-1]
+        dark = self.samples[dark_side]
+        spread = dark[:, int(round(0.3 * (m - 1)))] - dark[:, int(round(0.1 * (m - 1)))]
+        self.raw[dark_side] = spread / _DECILES_10_30
 
     def skewness(self, star_free_sigma: float = 5.0, min_fraction: float = 0.5) -> float:
         """Median skewness of the star-free tiles of the last :meth:`stats` call (``upper``).

@@ -15,7 +15,7 @@ comparison, only the centroid differs:
   logarithm: ln S = c0 + c1 x + c2 y + c3 x^2 + c4 y^2 by linear least
   squares over the window's pixels with I > 0 after subtracting the
   window's background, weighted by I (minimise sum I (ln I - ln S)^2, as
-  SEED-METHOD.md states it); x = -c1 / (2 c3), y = -c2 / (2 c4).
+  docs/seed-method.md states it); x = -c1 / (2 c3), y = -c2 / (2 c4).
 * ``sieve``: the Sieve Search Algorithm (Karaparambil et al., Sensors 2023,
   23(6):3222), from its published outline: the window is cut into all
   contiguous 3x3 sub-matrices ("sieves"); each is scored by magnitude

@@ -35,7 +35,7 @@ import numpy as np
 
 from tracker.normal import pixel_fractions
 
-__all__ = ["centroid_crb"]
+__all__ = ["centroid_crb", "gaussian_model", "PsfModel"]
 
 
 def _axis(centre: np.ndarray, first: np.ndarray, size: int, sigma: float):
@@ -44,16 +44,35 @@ def _axis(centre: np.ndarray, first: np.ndarray, size: int, sigma: float):
     return pixel_fractions(edges, sigma)
 
 
+PsfModel = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int],
+                   tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+def gaussian_model(sigma_px: float) -> PsfModel:
+    """The pixel-integrated Gaussian of ``sigma_px`` as a :data:`PsfModel`."""
+
+    def model(x, y, x0, y0, size):
+        wx, dwx = _axis(x, x0, size, sigma_px)
+        wy, dwy = _axis(y, y0, size, sigma_px)
+        return (wy[:, :, None] * wx[:, None, :], wy[:, :, None] * dwx[:, None, :],
+                dwy[:, :, None] * wx[:, None, :])
+    return model
+
+
 def centroid_crb(x: np.ndarray, y: np.ndarray, flux: np.ndarray, sigma_px: float,
                  variance: Callable[[np.ndarray], np.ndarray],
-                 saturation: float | None = None) -> np.ndarray:
+                 saturation: float | None = None, model: PsfModel | None = None) -> np.ndarray:
     """Lower bound on the RMS Euclidean centroid error of each star, px.
 
     ``x``, ``y``, ``flux``: (N,) arrays. ``variance(signal)`` maps the star's
     light per pixel, an (N, K, K) array, to the noise variance of those
     pixels in the same unit squared. ``saturation`` (same unit as ``flux``;
     None = never) is the star light at which a pixel clips. Stars with no
-    information give inf.
+    information give inf. ``model(x, y, x0, y0, size)`` gives each star's
+    fraction of light per pixel of the size x size box from column x0, row
+    y0, and its derivatives by x and y (:data:`PsfModel`); by default the
+    pixel-integrated Gaussian of ``sigma_px``, which also sets the box
+    (+-(4 sigma + 2) px).
     """
     x = np.atleast_1d(np.asarray(x, np.float64))
     y = np.atleast_1d(np.asarray(y, np.float64))
@@ -62,16 +81,13 @@ def centroid_crb(x: np.ndarray, y: np.ndarray, flux: np.ndarray, sigma_px: float
     size = 2 * half + 1
     x0 = np.floor(x + 0.5) - half
     y0 = np.floor(y + 0.5) - half
-    wx, dwx = _axis(x, x0, size, sigma_px)
-    wy, dwy = _axis(y, y0, size, sigma_px)
-    shape = wy[:, :, None] * wx[:, None, :]                  # (N, rows, cols)
+    shape, dx, dy = (model or gaussian_model(sigma_px))(x, y, x0, y0, size)
     signal = flux[:, None, None] * shape
     var = np.asarray(variance(signal), np.float64)
     if saturation is not None:
         var = np.where(signal >= saturation, np.inf, var)   # censored: no information
-    grads = np.stack([flux[:, None, None] * wy[:, :, None] * dwx[:, None, :],
-                      flux[:, None, None] * dwy[:, :, None] * wx[:, None, :],
-                      shape], axis=1)                        # (N, 3, rows, cols)
+    grads = np.stack([flux[:, None, None] * dx, flux[:, None, None] * dy, shape],
+                     axis=1)                                 # (N, 3, rows, cols)
     fisher = np.einsum("npij,nqij->npq", grads, grads / var[:, None])
     out = np.full(len(x), np.inf)
     ok = np.linalg.det(fisher) > 0

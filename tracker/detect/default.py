@@ -1,7 +1,9 @@
-"""The project's detector: robust background, impulse rejection, matched filter, windowed centroid.
+"""The project's detector: robust background, impulse rejection, the PSF measured, matched filter.
 
 Per frame, with every buffer made at construction for one frame shape and
-``detect.max_stars``:
+``detect.max_stars`` (PSF-dependent parts are rebuilt only when the PSF
+moves by more than a few per cent, and never grow beyond the widest PSF
+handled, sigma 3.5 px):
 
 1. ``input``: check the frame and copy it into a zero-bordered uint16
    buffer (tracker.detect.frame_input; bad frames give a reason code; other
@@ -12,24 +14,34 @@ Per frame, with every buffer made at construction for one frame shape and
 2. ``background``: per-tile median and low-side noise on a coarse grid,
    3x3-median-filtered and interpolated to full size (tracker.detect.background).
 3. ``impulses``: hot pixels, cosmic-ray tracks and salt-and-pepper pixels,
-   recognised by being much sharper than the PSF, are replaced by their 3x3
-   median and counted (tracker.detect.impulse).
-4. ``filter``: Gaussian of the PSF sigma (the matched filter), on a float32
-   copy (OpenCV's Gaussian is fastest on float32). The background is not
-   subtracted from the whole image: the threshold image carries it
+   recognised by being much sharper than the sharpest PSF the detector
+   handles (sigma 0.45 px), are replaced by their 3x3 median and counted
+   (tracker.detect.impulse).
+4. ``psf``: the PSF's width and ellipticity measured from the frame's
+   brightest isolated, unsaturated stars and smoothed across frames
+   (tracker.detect.psf); ``detect.psf_sigma_px`` is only the start. The
+   impulse candidates are then tested again against this PSF (a sharper
+   cut now that the stars' own sharpness is known), each replaced pixel
+   taking the median of its cleaned neighbourhood.
+5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
+   float32 copy (OpenCV's Gaussian is fastest on float32). The background is
+   not subtracted from the whole image: the threshold image carries it
    (background + filtered level left + k times the filtered noise, one
    interpolation of one grid), and the filtered statistics and every
-   sparse read subtract it where they look. k is
-   ``detect.threshold_sigma``, moved out for skewed noise to the same tail
-   probability (Cornish-Fisher, from the filtered background's skewness):
-   photon noise of a few counts per pixel otherwise puts clumps of counts
-   above a Gaussian-calibrated cut.
-5. ``peaks``: local maxima above that threshold; close pairs split where the
+   sparse read subtract it where they look. k comes from the false-alarm
+   budget ``detect.false_alarms_per_frame`` for this frame's size and PSF,
+   moved to the same tail probability for the frame's own noise
+   distribution (tracker.detect.threshold: a saddlepoint of its background
+   pixels' histogram; Cornish-Fisher from the skewness when too few tiles
+   are free of stars or neighbouring pixels are correlated).
+6. ``peaks``: local maxima above that threshold; close pairs split where the
    profile dips between them (tracker.detect.peaks).
-6. ``centroid``: iterative Gaussian-windowed centroid, flux, SNR and shape
-   (tracker.detect.windowed). Spots much narrower than the PSF (cosmic-ray
-   clusters that survived step 3) are rejected and counted. Saturated
-   stars are re-centred on their unclipped wings. With
+7. ``centroid``: iterative Gaussian-windowed centroid, then a fit of the
+   pixel-integrated PSF for the centre (no pixel-phase bias; saturated
+   pixels censored; tracker.detect.fit), flux, SNR and shape
+   (tracker.detect.windowed). Spots much narrower than the PSF, or rougher
+   at the pixel scale than any image of the sky (cosmic-ray clusters that
+   survived steps 3-4), are rejected and counted. With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
    every centre instead, from the frame as delivered; the shape tests
@@ -37,13 +49,16 @@ Per frame, with every buffer made at construction for one frame shape and
    and candidates that end within 2 PSF sigma of a brighter one are
    dropped as its duplicates.
 
-The median of step 3, the float copy and Gaussian of step 4 and the
-threshold test of step 5 run in ``detect.threads`` horizontal slabs at once
-(tracker.detect.slabs; the result does not depend on the thread count).
+The median of step 3, the float copy and Gaussian of step 5 and the
+threshold tests of steps 4 and 6 run in ``detect.threads`` horizontal slabs
+at once (tracker.detect.slabs; the result does not depend on the thread
+count).
 
 ``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
-found in step 3 plus sharp spots from step 6), sharp_spots, candidates.
-Stars are ordered brightest first (by matched-filter peak).
+found in steps 3-4 plus sharp spots from step 7), sharp_spots, candidates,
+left_out (stars beyond ``detect.max_stars``). ``Detections.psf_*``: the PSF
+used. Stars are ordered most significant first (by SNR); beyond
+``detect.max_stars`` the least significant are left out.
 """
 
 from __future__ import annotations
@@ -55,23 +70,118 @@ import numpy as np
 
 from tracker.config import DetectConfig
 from tracker.detect.background import QUANTISATION_NOISE_ADU, BackgroundGrid
+from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.frame_input import FrameInput, Reason
-from tracker.detect.impulse import ImpulseFilter, psf_contrast
+from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.multiplicative import MultiplicativeFit
 from tracker.detect.peaks import PeakFinder
+from tracker.detect.psf import (
+    SIGMA_MAX_PX,
+    SIGMA_MIN_PX,
+    PsfMeter,
+    PsfTracker,
+    combine_stars,
+    pixel_tensor_to_optics,
+)
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.slabs import SlabRunner
 from tracker.detect.stars import StarTable
+from tracker.detect.surroundings import Surroundings, sky_noise_model
+from tracker.detect.threshold import NoiseTail, gaussian_peak_threshold, skewed_threshold
 from tracker.detect.windowed import WindowedCentroider
+from tracker.normal import pixel_fractions
 from tracker.timing import StageTimer
 
-__all__ = ["DefaultDetector", "effective_sigma"]
+__all__ = ["DefaultDetector", "effective_sigma", "PSF_STAR_DTYPE"]
+
+PSF_STAR_DTYPE = np.dtype([("x", np.float64), ("y", np.float64), ("sigma_px", np.float64),
+                           ("ellipticity", np.float64)])
+
+_SIGMA_STEP = math.log(1.03)   # PSF sigmas are used in steps of 3 %
+_PSF_STARS = 48                # brightest stars examined for the PSF ...
+_PSF_PEAKS = 512               # ... among this many brightest peaks, impulses set aside
+_PSF_POOL = 8192               # spared impulse candidates looked at for those peaks
+_PSF_IMPULSE_CONTRAST = 0.95   # a peak this far above its 3x3 median is an impulse
+_PSF_PIXELS = 32768            # pixels above the PSF stage's threshold examined
+_PSF_RING_SIGMAS = 4.5         # tracker.detect.psf's isolation ring reaches this far
+_PSF_ROUND = 0.5               # a PSF candidate's 5x5 light is rounder than this
+_PLATEAU_STARS = 64            # saturated stars centred on their clipped core, at most
+_PLATEAU_FILL = 0.7            # ... when its radius is this much of the window's
+_CHUNK = 128                   # stars centroided at a time (bounds the window buffers)
+_ROUGH_REFERENCE_SNR = 30.0    # spots this bright set the frame's roughness reference
+_STAR_WIDTH = math.log(1.25)   # ... if their width is within 25 % of the PSF's
+_STAR_ELLIPTICITY = 0.2        # ... and they are round
+_TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
+_TRACK_ELLIPTICITY = 0.3       # ... this elongated is a particle's track
+_TRACK_EXCESS = 0.35           # a spot this much more elongated than the frame's PSF ...
+_NARROW_WIDTH = 0.7            # a spot this narrow (its PSF's = 1), unsaturated, ...
+_NARROW_SNR = 50.0             # ... at this SNR is a particle's charge, not a star
+_SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
+_REMNANT_WIDTH = 0.85          # a spot this narrow and ...
+_REMNANT_ROUGH = 3.0           # ... this rough (x a point source's) is a track's remnant
+_SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
+_IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
+_SHARPEST_RING = 0.5 * psf_ring(SIGMA_MIN_PX)
+_FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
+_SECOND_LOOKS = 2              # searches again with a PSF measured on the candidates
+_SECOND_LOOK_CHANGE = math.log(1.25)  # ... when it is this far from the one used
+_SECOND_LOOK_SNR = 20.0        # ... from candidates this significant
+_SKY_RING_SIGMAS = 3.5         # a candidate's surroundings: from this many PSF sigmas ...
+_SKY_RING_WIDTH = 2            # ... outward by this many pixels
+_TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is textured,
+_TEXTURED_SKY_SECTORS = 6      # ... and its candidates need this many sky sectors
+_TILE_NEIGHBOURS = np.ones((3, 3), np.uint8)
+_BROAD_SKY_SECTORS = 4         # a broad candidate needs this many sky sectors
+_WING_LEVEL = 0.5              # a saturated star's wings are under this much of saturation
+_DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part holds an edge
+_TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its tail modelled
 
 
 def effective_sigma(psf_sigma_px: float) -> float:
     """Sigma of a Gaussian PSF after integration over a square pixel, px."""
     return math.sqrt(psf_sigma_px ** 2 + 1.0 / 12.0)
+
+
+def _far_ring(sigma_px: float) -> int:
+    """Outer radius (px) of the furthest sky ring (tracker.detect.surroundings) for an
+    optical PSF sigma of ``sigma_px``."""
+    inner = int(math.ceil(_SKY_RING_SIGMAS * effective_sigma(sigma_px)))
+    return inner + _SKY_RING_WIDTH + max(_SKY_RING_WIDTH, inner // 2)
+
+
+def _window_radius(psf_sigma_px: float) -> int:
+    """Centroid window radius, px: 3 sigma of the pixel-integrated PSF."""
+    return int(math.ceil(3.0 * effective_sigma(psf_sigma_px)))
+
+
+def _kernel_half(psf_sigma_px: float) -> int:
+    """Matched filter's half-width, px: round(2 sigma) of the pixel-integrated PSF.
+
+    The cut-off kernel keeps >= 99 % of the matched filter's SNR (its square
+    holds >= 99.5 % of the PSF's squared mass per axis) and costs two thirds
+    of a 2.5-sigma one (5x5 instead of 7x7 at sigma 1.2).
+    """
+    return max(1, int(round(2.0 * effective_sigma(psf_sigma_px))))
+
+
+def _point_roughness(centroider: WindowedCentroider, sigma_px: float) -> float:
+    """The windowed roughness of a noise-free pixel-integrated Gaussian star, px^-4.
+
+    Averaged over centres on a pixel's centre, edge and corner; the
+    reference a spot's roughness is compared with.
+    """
+    r = centroider.radius
+    edges = np.arange(-r, r + 2, dtype=np.float64) - 0.5
+    values = []
+    for phase in ((0.0, 0.0), (0.5, 0.0), (0.5, 0.5)):
+        fx, _ = pixel_fractions(edges - phase[0], sigma_px)
+        fy, _ = pixel_fractions(edges - phase[1], sigma_px)
+        s = np.outer(fy, fx)
+        lap = (4.0 * s[1:-1, 1:-1] - s[:-2, 1:-1] - s[2:, 1:-1] - s[1:-1, :-2]
+               - s[1:-1, 2:])
+        values.append(float(np.sum(lap * lap) / np.sum(s * s)))
+    return float(np.mean(values))
 
 
 def _reflected_noise_gain(kernel: np.ndarray, rows: int,
@@ -104,11 +214,11 @@ class DefaultDetector:
 
     def __init__(self, cfg: DetectConfig, shape: tuple[int, int], bit_depth: int) -> None:
         self.cfg = cfg
-        sigma = effective_sigma(cfg.psf_sigma_px)
-        self.sigma = sigma
-        self.radius = int(math.ceil(3.0 * sigma))
-        blend = 2 * self.radius if cfg.blend_radius_px is None else int(cfg.blend_radius_px)
-        layout = PaddedLayout(shape, max(self.radius, blend) + 1)
+        max_radius = _window_radius(SIGMA_MAX_PX)
+        max_blend = 2 * max_radius if cfg.blend_radius_px is None else int(cfg.blend_radius_px)
+        psf_radius = int(math.ceil(_PSF_RING_SIGMAS * effective_sigma(SIGMA_MAX_PX)))
+        sky_radius = _far_ring(SIGMA_MAX_PX)
+        layout = PaddedLayout(shape, max(max_radius, max_blend, psf_radius, sky_radius) + 1)
         self.layout = layout
         self.input = FrameInput(shape, bit_depth, min_size=3, layout=layout, dtype=np.uint16)
         self.saturation = (self.input.full_scale if cfg.saturation_adu is None
@@ -127,42 +237,120 @@ class DefaultDetector:
         self.bg_pad, self.bg = layout.buffer(np.float32)
         # impulse_sigma times the pixel noise in whole ADU, like the differences it bounds
         self.limit_pad, self.impulse_limit = layout.buffer(np.uint16)
+        self.bright_pad, self.bright_threshold = layout.buffer(np.uint16)  # the PSF stage's
         self.work_float = np.zeros(self.input.shape, np.float32)  # the filter's input
         self.filt_pad, self.filt = layout.buffer(np.float32)
         self.threshold = np.zeros(self.input.shape, np.float32)  # background included, ADU
+        # An impulse is sharper than the sharpest PSF the detector is made for (0.55 px,
+        # at its sharpest sub-pixel phase), whatever this frame's PSF turns out to be.
         contrast = (cfg.impulse_contrast if cfg.impulse_contrast is not None
-                    else 0.5 * (1.0 + psf_contrast(cfg.psf_sigma_px)))
+                    else 0.5 * (1.0 + psf_contrast(_FIRST_PASS_SIGMA_PX, worst_phase=True)))
         self.impulses = ImpulseFilter(layout, contrast, cfg.max_impulses, np.uint16,
                                       cfg.threads)
-        # Half-width round(2 sigma): the cut-off kernel keeps >= 99 % of the matched
-        # filter's SNR (its square holds >= 99.5 % of the PSF's squared mass per axis)
-        # and costs two thirds of a 2.5-sigma one (5x5 instead of 7x7 at sigma 1.2).
-        k = 2 * int(round(2.0 * sigma)) + 1
-        self.ksize = (k, k)
-        kernel = cv2.getGaussianKernel(k, sigma, cv2.CV_64F).ravel()
-        self.filter_gain = float(np.sum(kernel ** 2))  # filtered / pixel noise, white noise
-        self.threshold_k = float(cfg.threshold_sigma)
-        self.filter_slabs = SlabRunner(layout.rows, layout.cols, k // 2, cfg.threads,
-                                       np.float32)
-        self.edge_gain = _reflected_noise_gain(kernel, layout.rows, layout.cols)
-        self.peaks = PeakFinder(layout, blend, cfg.deblend_dip_sigma, cfg.max_pixels_above,
+        self.filter_slabs = SlabRunner(layout.rows, layout.cols, _kernel_half(SIGMA_MAX_PX),
+                                       cfg.threads, np.float32)
+        self.peaks = PeakFinder(layout, 1, cfg.deblend_dip_sigma, cfg.max_pixels_above,
                                 cfg.max_candidates, slabs=self.filter_slabs)
+        self.bright = PeakFinder(layout, psf_radius, cfg.deblend_dip_sigma, _PSF_PIXELS,
+                                 _PSF_PEAKS, slabs=self.filter_slabs, dtype=np.uint16)
+        self.psf_values = np.zeros(_PSF_PEAKS, np.float32)
+        self.psf_reads = np.zeros(_PSF_PEAKS, np.uint16)
+        self.psf_contrast = np.zeros(_PSF_PEAKS, np.float32)
+        dy, dx = (a.ravel() for a in np.mgrid[-max_radius:max_radius + 1,
+                                              -max_radius:max_radius + 1])
+        self.plateau_offsets = (dy * layout.stride + dx).astype(np.intp)
+        self.plateau_xy = np.stack([dx, dy], axis=1).astype(np.float64)
+        self.plateau_index = np.zeros((_PLATEAU_STARS, dx.size), np.intp)
+        self.plateau_reads = np.zeros((_PLATEAU_STARS, dx.size), np.uint16)
+        self.plateau_full = np.zeros((_PLATEAU_STARS, dx.size), np.bool_)
+        dy, dx = (a.ravel() for a in np.mgrid[-2:3, -2:3])
+        self.round_offsets = (dy * layout.stride + dx).astype(np.intp)
+        self.round_moments = np.stack([np.ones(25), dx, dy, dx * dx, dy * dy, dx * dy],
+                                      axis=1).astype(np.float32)
+        self.round_index = np.zeros((_PSF_PEAKS, 25), np.intp)
+        self.round_reads = np.zeros((_PSF_PEAKS, 25), np.uint16)
+        self.round_values = np.zeros((_PSF_PEAKS, 25), np.float32)
+        self.pool_height = np.zeros(_PSF_POOL, np.float32)
+        self.pool_reads = np.zeros(_PSF_POOL, np.uint16)
+        self.pool_noise = np.zeros(_PSF_POOL, np.float32)
+        self.pool_cand = np.zeros(_PSF_PEAKS, np.intp)
+        self.pool_cand_noise = np.zeros(_PSF_PEAKS, np.float32)
+        self.psf_cand = np.zeros(_PSF_STARS, np.intp)
+        self.psf_noise = np.zeros(_PSF_STARS, np.float32)
+        self.psf_meter = PsfMeter(layout.stride, psf_radius, _PSF_STARS, cfg.psf_min_stars)
+        self.psf_tracker = PsfTracker(cfg.psf_sigma_px, cfg.psf_memory_frames)
+        self.psf = self.psf_tracker.current
+        self.fit = PixelGaussianFit(_CHUNK, 2 * max_radius + 1)
         self.centroider = WindowedCentroider(
-            layout.stride, self.radius, sigma, gain=2.0, iterations=cfg.centroid_iterations,
+            layout.stride, max_radius, gain=2.0, iterations=cfg.centroid_iterations,
             tolerance=cfg.centroid_tolerance_px, max_shift=1.5, capacity=cfg.max_candidates,
-            dtype=np.uint16)
+            dtype=np.uint16, chunk=_CHUNK,
+            fit=None if cfg.centroid_noise == "multiplicative" else self.fit)
         # multiplicative noise: the likelihood fit reads the frame as delivered, since
         # the impulse filter takes the spikes of speckle for hot pixels
         self.speckle_fit = None
         if cfg.centroid_noise == "multiplicative":
-            self.speckle_fit = MultiplicativeFit(self.radius, cfg.psf_sigma_px,
-                                                 self.input.full_scale)
             self.delivered_pad = np.zeros_like(self.input.padded)
-        self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
         self.cand_noise = np.zeros(cfg.max_candidates, np.float32)
         self.cand_level = np.zeros(cfg.max_candidates, np.float32)
+        self.edge_px = np.zeros(_PSF_STARS, np.float64)
+        self.tail = NoiseTail(self.grid.index)
+        self.textured = np.zeros(grid_shape, np.bool_)
+        self.dark_side = np.zeros(grid_shape, np.bool_)
+        self.near_texture = np.zeros(grid_shape, np.bool_)
+        self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
+        self.surroundings = Surroundings(layout.stride, sky_radius, cfg.max_candidates, _CHUNK,
+                                         _SKY_RING_WIDTH)
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
-                         "sharp_spots": 0, "candidates": 0}
+                         "sharp_spots": 0, "masked": 0, "candidates": 0, "left_out": 0}
+        self._sigma_step = None
+        self._configure(cfg.psf_sigma_px)
+
+    def _configure(self, sigma_px: float) -> None:
+        """Set every PSF-dependent part for an optical PSF sigma of ``sigma_px``.
+
+        Sigma is rounded to steps of 3 % (a matched filter 3 % too wide or
+        narrow keeps 99.96 % of the SNR), and the parts are rebuilt only when
+        the PSF has moved more than one and a half steps from the one they
+        were built for: a PSF wandering by a few per cent from frame to
+        frame leaves the kernels, windows and their buffers as they are.
+        """
+        position = math.log(sigma_px) / _SIGMA_STEP
+        if self._sigma_step is not None and abs(position - self._sigma_step) <= 1.5:
+            return
+        step = int(round(position))
+        self._sigma_step = step
+        sigma_px = math.exp(step * _SIGMA_STEP)
+        self.psf_sigma_used = sigma_px
+        sigma = effective_sigma(sigma_px)
+        self.sigma = sigma
+        self.radius = _window_radius(sigma_px)
+        blend = 2 * self.radius if self.cfg.blend_radius_px is None else int(
+            self.cfg.blend_radius_px)
+        k = 2 * _kernel_half(sigma_px) + 1
+        self.ksize = (k, k)
+        kernel = cv2.getGaussianKernel(k, sigma, cv2.CV_64F).ravel()
+        # filtered / pixel noise for white noise: sqrt of the 2-D kernel's sum of squares
+        self.filter_gain = float(np.sum(kernel ** 2))
+        self.edge_gain = _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols)
+        self.peak_threshold = gaussian_peak_threshold(
+            self.cfg.false_alarms_per_frame, self.layout.rows * self.layout.cols, kernel)
+        self.tail.configure(kernel)
+        self.peaks.configure(blend)
+        self.centroider.configure(self.radius, sigma)
+        self.fit.configure(self.radius, sigma_px)
+        if self.cfg.centroid_noise == "multiplicative":
+            self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
+        self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
+        self.surroundings.configure(int(math.ceil(_SKY_RING_SIGMAS * sigma)))
+        # halfway between an impulse's contrast over its 3x3 median and that of a centred
+        # star a tenth sharper than the PSF at its sharpest sub-pixel phase
+        self.impulse_contrast = 0.5 * (1.0 + psf_contrast(_IMPULSE_PSF_MARGIN * sigma_px,
+                                                          worst_phase=True))
+        self.point_roughness = _point_roughness(self.centroider, sigma_px)
+        # a hot pixel's neighbours hold noise; those of a star a tenth sharper than the
+        # PSF, at its sharpest phase, more than twice this
+        self.impulse_ring = 0.5 * psf_ring(_IMPULSE_PSF_MARGIN * sigma_px)
 
     def _noise_f_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
         return self.grid.at(self.noise_f, flat, out)
@@ -184,6 +372,9 @@ class DefaultDetector:
         grid = self.grid
         grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
                    upper=True)
+        if self._mark_dark_side():
+            grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
+                       upper=True, dark_side=self.dark_side)
         grid.upsample(self.level, self.bg)
         np.multiply(self.noise, self.cfg.impulse_sigma, out=self.float_grid)
         np.clip(self.float_grid, 0.0, 65535.0, out=self.float_grid)
@@ -193,22 +384,244 @@ class DefaultDetector:
         timer.start("impulses")
         self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
                                                self.limit_pad, self.impulse_limit))
+        timer.start("psf")
+        self.psf = self.psf_tracker.update(self._measure_psf() if self.cfg.psf_measure
+                                           else None)
+        self._configure(self.psf.sigma_px)
+        self._refine_impulses()
+        count = self._search()
+        for _ in range(_SECOND_LOOKS):
+            # too few bright stars for step 4: the centroided candidates measure the PSF,
+            # and a frame whose PSF is far from the one used is searched again with it
+            if not self.cfg.psf_measure or self.psf.stars > 0:
+                break
+            measured = self._psf_from_candidates()
+            if measured is None or abs(math.log(measured.sigma_px / self.psf_sigma_used)) < (
+                    _SECOND_LOOK_CHANGE):
+                break
+            self.psf = self.psf_tracker.update(measured)
+            self._configure(self.psf.sigma_px)
+            count = self._search()
+        timer.stop()
+        reason = (Reason.CROWDED if self.peaks.crowded
+                  else Reason.TOO_MANY if self.counters["left_out"] else None)
+        return self.table.result(count, reason, self.counters, timer.ms, self.psf)
+
+    def _refine_impulses(self) -> None:
+        """The impulse stage's second pass, judged against the PSF in use if this frame's
+        stars measured it; else against the sharpest PSF the detector handles (a PSF
+        from elsewhere may be wider than the frame's stars, and a pass for it would take
+        a sharper star's pixels for impulses and clear them as a track)."""
+        measured = self.psf.stars > 0
+        contrast = (self.cfg.impulse_contrast if self.cfg.impulse_contrast is not None
+                    else self.impulse_contrast if measured else self.impulses.contrast)
+        ring = self.impulse_ring if measured else _SHARPEST_RING
+        self.counters.update(self.impulses.refine(self.input.padded, self.bg_pad,
+                                                  self.limit_pad, contrast, ring))
+
+    def _mark_dark_side(self) -> bool:
+        """Mark the tiles that straddle the edge of a bright body; whether there are any.
+
+        Such a tile is far brighter (in its interquartile mean) than the
+        frame's sky, by more than ten times the sky's noise, while its darker
+        part (6th-37th percentile) is within that of the sky around it: sky
+        and ground (or glare) in one tile. Its statistics then come from the
+        darker part (tracker.detect.background), so the stars on the sky side
+        meet the sky's background and threshold.
+        """
+        level0, var0, slope = sky_noise_model(self.level, self.noise, self.saturation)
+        grid = self.grid
+        m = grid.samples.shape[-1]
+        dark = grid.samples[..., m // 16: 3 * m // 8].mean(axis=-1)
+        sky_noise = np.sqrt(var0 + slope * np.maximum(dark - level0, 0.0))
+        np.logical_and(grid.level_raw - dark > _DARK_SIDE_SIGMAS * sky_noise,
+                       grid.level_raw < 0.9 * self.saturation, out=self.dark_side)
+        return bool(self.dark_side.any())
+
+    def psf_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The PSF of the last frame's stars near (x, y) px, one by one (for a focus map).
+
+        Returns the usable ones (isolated, unsaturated, round; at most 48 per
+        call, the first given first) as a structured array of x, y (px),
+        sigma_px and ellipticity (tracker.detect.psf's measure, star by star;
+        its windows are sized for the widest of the brightest few given, so
+        stars of very different widths are best measured in separate calls).
+        """
+        n = min(len(x), _PSF_STARS)
+        rows = np.clip(np.rint(np.asarray(y[:n])), 0, self.layout.rows - 1).astype(np.intp)
+        cols = np.clip(np.rint(np.asarray(x[:n])), 0, self.layout.cols - 1).astype(np.intp)
+        self.psf_cand[:n] = self.layout.flat_index(rows, cols)
+        self.grid.at(self.noise, self.psf_cand[:n], self.psf_noise[:n])
+        self.psf_meter.measure(n, self.input.padded, self.bg_pad, self.psf_cand,
+                               self.psf_noise, self.saturation, self.psf.sigma_px,
+                               self._edge_distance(rows, cols), min_stars=1)
+        return self.psf_stars()
+
+    def psf_stars(self) -> np.ndarray:
+        """The stars of the last PSF measurement (the frame's or :meth:`psf_of`'s).
+
+        A structured array (a copy) of x, y (px), sigma_px and ellipticity.
+        Empty when the PSF was not measured on the frame's bright stars (too
+        few; ``detect.psf_measure`` false).
+        """
+        flat, sigma, ellipticity, offset = self.psf_meter.last_stars()
+        rows, cols = self.layout.frame_position(flat)
+        out = np.zeros(len(flat), PSF_STAR_DTYPE)
+        out["x"], out["y"] = cols + offset[:, 0], rows + offset[:, 1]
+        out["sigma_px"], out["ellipticity"] = sigma, ellipticity
+        return out
+
+    def _search(self) -> int:
+        """Filter, threshold, peaks and centroids with the PSF configured; star count."""
+        timer, grid = self.timer, self.grid
         timer.start("filter")
         self.filter_slabs.rows(self._to_float)
         self.filter_slabs.run(self._matched_filter, self.work_float, self.filt)
         grid.stats(self.filt_pad, self.residual, self.noise_f,
-                   QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=self.bg_pad)
-        self._skew_threshold(grid.skewness())
+                   QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=self.bg_pad,
+                   dark_side=self.dark_side if self.dark_side.any() else None)
+        self._tail_threshold()
         self._make_threshold(1.0)
         timer.start("peaks")
         n = self.peaks.find(self.filt_pad, self.filt, self.threshold, self.bg_pad,
                             self._make_threshold, self._noise_f_at)
         self.counters["candidates"] = n
         timer.start("centroid")
-        count = self._measure(n)
-        timer.stop()
-        reason = Reason.CROWDED if self.peaks.crowded else None
-        return self.table.result(count, reason, self.counters, timer.ms)
+        return self._measure(n)
+
+    def _psf_from_candidates(self):
+        """The PSF from the centroided candidates' windowed moments (tracker.detect.psf).
+
+        For a Gaussian spot the moments under the window's Gaussian weight
+        give its covariance exactly (C = (M^-1 - I / w^2)^-1); the spots used
+        are significant (SNR >= 20), unsaturated, unblended and round enough.
+        Windows cut for a PSF much narrower than the stars' truncate them, so
+        a wide PSF is approached in a step or two.
+        """
+        n = self.counters["candidates"]
+        if n == 0:
+            return None
+        v = self.centroider.v
+        w2 = self.sigma ** 2
+        use = ((v["snr"][:n] >= _SECOND_LOOK_SNR) & (v["raw_peak"][:n] < self.saturation)
+               & ~self.peaks.blended[:n])
+        mxx, myy, mxy = v["mxx"][:n][use], v["myy"][:n][use], v["mxy"][:n][use]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            det = mxx * myy - mxy * mxy
+            a, b, c = myy / det - 1.0 / w2, mxx / det - 1.0 / w2, -mxy / det
+            det_c = a * b - c * c
+            sigma, ellipticity, _ = pixel_tensor_to_optics(b / det_c, a / det_c, -c / det_c)
+        good = (np.isfinite(sigma) & (ellipticity < 0.5) & (sigma >= SIGMA_MIN_PX)
+                & (sigma <= SIGMA_MAX_PX) & (det > 0) & (det_c > 0))
+        return combine_stars(sigma[good], ellipticity[good], (b / det_c)[good],
+                             (a / det_c)[good], (-c / det_c)[good], self.cfg.psf_min_stars)
+
+    def _bright_peaks(self) -> tuple[np.ndarray, np.ndarray]:
+        """The brightest local maxima (padded flat indices, pixel noise), brightest first.
+
+        From the impulse stage's spared candidates when it kept a list (no
+        further pass over the frame), else by a threshold search of the frame
+        (tracker.detect.peaks); at least ``psf_min_peak_sigma`` pixel noise
+        above the background, at most ``_PSF_PEAKS`` of them.
+        """
+        spared = self.impulses.spared_maxima(self.input.padded, self.bg_pad)
+        if spared is None:
+            self._bright_threshold(1.0)
+            n = self.bright.find(self.input.padded, self.input.work, self.bright_threshold,
+                                 self.bg_pad, self._bright_threshold, self._noise_at)
+            return self.bright.cand[:n], self.bright.cand_noise[:n]
+        m = min(len(spared), _PSF_POOL)
+        spared = spared[:m]
+        height = self.pool_height[:m]
+        np.take(self.input.padded.ravel(), spared, out=self.pool_reads[:m], mode="clip")
+        np.copyto(height, self.pool_reads[:m])
+        np.subtract(height, np.take(self.bg_pad.ravel(), spared, mode="clip"), out=height)
+        noise = self.pool_noise[:m]
+        self.grid.at(self.noise, spared, noise)
+        bright = np.flatnonzero(height > self.cfg.psf_min_peak_sigma * noise)
+        order = bright[np.argsort(-height[bright], kind="stable")][:_PSF_PEAKS]
+        k = len(order)
+        self.pool_cand[:k] = spared[order]
+        self.pool_cand_noise[:k] = noise[order]
+        return self.pool_cand[:k], self.pool_cand_noise[:k]
+
+    def _measure_psf(self):
+        """This frame's PSF from its brightest stars (tracker.detect.psf), or None."""
+        cand, noise = self._bright_peaks()
+        n = len(cand)
+        if n == 0:
+            return None
+        # Hot pixels and one-pixel hits the first impulse pass left (it spares anything
+        # a sharp star could be) stand above their 3x3 median by nearly their whole
+        # height: they do not take the stars' places. The median is the impulse
+        # stage's, of the frame as it arrived.
+        value = self.psf_values[:n]
+        np.take(self.input.padded.ravel(), cand, out=self.psf_reads[:n], mode="clip")
+        np.copyto(value, self.psf_reads[:n])
+        unsaturated = value < self.saturation
+        np.take(self.impulses.median_pad.ravel(), cand, out=self.psf_reads[:n], mode="clip")
+        np.subtract(value, self.psf_reads[:n], out=self.psf_contrast[:n])
+        np.subtract(value, np.take(self.bg_pad.ravel(), cand, mode="clip"), out=value)
+        np.divide(self.psf_contrast[:n], np.maximum(value, 1e-6), out=self.psf_contrast[:n])
+        # saturated peaks cannot be measured, and the bright pieces of particle tracks
+        # (dozens in an event) are not round: neither takes a star's place
+        star = np.flatnonzero((self.psf_contrast[:n] < _PSF_IMPULSE_CONTRAST) & unsaturated
+                              & self._round(cand, n))[:_PSF_STARS]
+        m = len(star)
+        if m == 0:
+            return None
+        self.psf_cand[:m] = cand[star]
+        self.psf_noise[:m] = noise[star]
+        rows, cols = self.layout.frame_position(self.psf_cand[:m])
+        # under multiplicative noise the impulse filter clips the speckles of star cores:
+        # their shape is measured on the frame as delivered
+        frame = self.input.padded if self.speckle_fit is None else self.delivered_pad
+        return self.psf_meter.measure(m, frame, self.bg_pad, self.psf_cand, self.psf_noise,
+                                      self.saturation, self.psf.sigma_px,
+                                      self._edge_distance(rows, cols))
+
+    def _edge_distance(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Pixels from each (row, col) to the frame's nearest edge (a view of a buffer)."""
+        h, w = self.input.shape
+        out = self.edge_px[:len(rows)]
+        np.minimum(rows, cols, out=out, casting="unsafe")
+        np.minimum(out, h - 1 - rows, out=out)
+        np.minimum(out, w - 1 - cols, out=out)
+        return out
+
+    def _round(self, cand: np.ndarray, n: int) -> np.ndarray:
+        """Whether the light in the 5x5 pixels around each of ``cand[:n]`` is round: the
+        ellipticity of its central second moments (above the background) under
+        ``_PSF_ROUND``. A star's is (at any sub-pixel phase); a track's is not."""
+        idx = self.round_index[:n]
+        np.add(cand[:n, None], self.round_offsets[None, :], out=idx)
+        win = self.round_values[:n]
+        np.take(self.input.padded.ravel(), idx, out=self.round_reads[:n], mode="clip")
+        np.copyto(win, self.round_reads[:n])
+        np.subtract(win, np.take(self.bg_pad.ravel(), cand[:n], mode="clip")[:, None],
+                    out=win)
+        np.maximum(win, 0.0, out=win)
+        m = win @ self.round_moments                    # (n, 6): 1, x, y, x^2, y^2, xy
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s0 = m[:, 0]
+            mx, my = m[:, 1] / s0, m[:, 2] / s0
+            mxx, myy = m[:, 3] / s0 - mx * mx, m[:, 4] / s0 - my * my
+            mxy = m[:, 5] / s0 - mx * my
+            e = np.hypot(mxx - myy, 2.0 * mxy) / (mxx + myy)
+        return e < _PSF_ROUND
+
+    def _bright_threshold(self, factor: float = 1.0) -> None:
+        """The PSF stage's threshold (uint16): background + factor * psf_min_peak_sigma *
+        pixel noise, in whole ADU."""
+        np.multiply(self.noise, factor * self.cfg.psf_min_peak_sigma, out=self.float_grid)
+        np.add(self.float_grid, self.level, out=self.float_grid)
+        np.clip(self.float_grid, 0.0, 65535.0, out=self.float_grid)
+        np.rint(self.float_grid, out=self.float_grid)
+        np.copyto(self.int_grid, self.float_grid, casting="unsafe")
+        self.grid.upsample(self.int_grid, self.bright_threshold)
+
+    def _noise_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
+        return self.grid.at(self.noise, flat, out)
 
     def _to_float(self, a: int, b: int) -> None:
         np.copyto(self.work_float[a:b], self.input.work[a:b])
@@ -216,18 +629,23 @@ class DefaultDetector:
     def _matched_filter(self, src: np.ndarray, dst: np.ndarray) -> None:
         cv2.GaussianBlur(src, self.ksize, self.sigma, dst=dst, borderType=cv2.BORDER_REFLECT)
 
-    def _skew_threshold(self, skewness: float) -> None:
-        """threshold_k: threshold_sigma moved to the same tail probability for skewed noise.
+    def _tail_threshold(self) -> None:
+        """threshold_k for this frame (tracker.detect.threshold).
 
-        Cornish-Fisher: the z quantile of a distribution of skewness g sits
-        near z + g (z^2 - 1) / 6 standard deviations. Photon noise of a few
-        counts per pixel is skewed even after the matched filter (and a
-        Gaussian 6-sigma cut lets its clumps through); Gaussian noise (g about
-        0) keeps threshold_sigma. ``skewness``: of the filtered background.
+        The Gaussian level of the false-alarm budget (or ``threshold_sigma``
+        if set), moved to the same tail probability for the frame's own
+        noise distribution: by the saddlepoint of its background pixels, or,
+        when too few tiles are free of stars for that, by Cornish-Fisher
+        from the filtered background's skewness.
         """
-        z = float(self.cfg.threshold_sigma)
-        g = max(0.0, skewness)
-        self.threshold_k = z + g * (z * z - 1.0) / 6.0
+        u = (self.peak_threshold if self.cfg.threshold_sigma is None
+             else float(self.cfg.threshold_sigma))
+        skewness = self.grid.skewness()
+        k = None
+        if skewness > _TAIL_SKEWNESS:   # noise near Gaussian needs no histogram
+            self.tail.sample(self.input.padded, self.level, self.noise)
+            k = self.tail.threshold(u, self.noise_f, self.filter_gain)
+        self.threshold_k = max(u, k) if k is not None else skewed_threshold(u, skewness)
 
     def _make_threshold(self, factor: float) -> None:
         """Threshold image: background + level left + factor * threshold_k * noise."""
@@ -236,6 +654,31 @@ class DefaultDetector:
         np.add(self.float_grid, self.level, out=self.float_grid)
         self.grid.upsample(self.float_grid, self.threshold)
         self._raise_edges()
+
+    def _centre_plateaus(self, n: int, cand: np.ndarray, v: dict) -> None:
+        """Centre the stars whose clipped core nearly fills the centroid's window on that
+        core: the clipped pixels are those inside the PSF's contour at full scale,
+        symmetric about the star's centre, and their mean position is it (to about a
+        tenth of a pixel), where the window has too few unclipped pixels left to fit.
+        At most ``_PLATEAU_STARS`` of them (the first candidates), in boxes as wide
+        as the widest window."""
+        clipped = np.flatnonzero(v["raw_peak"][:n] >= self.saturation)[:_PLATEAU_STARS]
+        k = len(clipped)
+        if k == 0:
+            return
+        idx = self.plateau_index[:k]
+        np.add(cand[clipped, None], self.plateau_offsets[None, :], out=idx)
+        reads = self.plateau_reads[:k]
+        np.take(self.input.padded.ravel(), idx, out=reads, mode="clip")
+        full = self.plateau_full[:k]
+        np.greater_equal(reads, self.saturation, out=full)
+        count = full.sum(axis=1)
+        wide = count >= math.pi * (_PLATEAU_FILL * self.radius) ** 2
+        if not wide.any():
+            return
+        mean = (full[wide] @ self.plateau_xy) / count[wide, None]
+        v["x0"][clipped[wide]] = mean[:, 0]
+        v["y0"][clipped[wide]] = mean[:, 1]
 
     def _raise_edges(self) -> None:
         """Scale the threshold's height above the background near the borders.
@@ -262,12 +705,15 @@ class DefaultDetector:
         noise, level = self.cand_noise[:n], self.cand_level[:n]
         self.grid.at(self.noise, cand, noise)
         self.grid.at(self.residual, cand, level)
-        v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level)
+        v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level,
+                                    self.saturation, self.peaks.blended[:n])
+        if self.speckle_fit is None:
+            self._centre_plateaus(n, cand, v)
         if self.speckle_fit is not None:  # its likelihood handles saturated stars too
             merged = self.centroider.refine_multiplicative(
-                n, self.speckle_fit, self.delivered_pad, self.bg_pad, level, 2.0 * self.sigma)
+                n, self.speckle_fit, cand, self.delivered_pad, self.bg_pad, level,
+                2.0 * self.sigma)
         else:
-            self.centroider.refine_clipped(n, self.saturation, self.sigma, noise)
             merged = False
         # Shape tests against the PSF, for spots bright enough to measure; under
         # multiplicative noise a star's own pixels are spiky, so none applies.
@@ -278,12 +724,49 @@ class DefaultDetector:
         # rejection leaves of a track) count as narrow.
         narrowest = 0.5 * v["size"] * (1.0 - v["ellipticity"])
         spot = (v["weighted"] > 0) & (v["size"] > 0) & (v["ellipticity"] <= 1.0)
-        sharp = judged & (
-            ~spot | (narrowest < self.cfg.sharp_size_ratio * 0.5 * self.expected_size))
+        width = narrowest / (0.5 * self.expected_size)     # 1 for a star of this PSF
+        star_like = judged & spot & (np.abs(np.log(np.maximum(width, 1e-6))) < _STAR_WIDTH) & (
+            v["ellipticity"] < _STAR_ELLIPTICITY)
+        rough = v["rough"] / self._roughness_reference(v, star_like)
+        # a line narrower than the PSF (a track; a trailed star keeps the PSF's width), or
+        # a narrow spot rough at the pixel scale (a track's remnant)
+        track = ((width < _TRACK_WIDTH) & (v["ellipticity"] > _TRACK_ELLIPTICITY)) | (
+            (width < _REMNANT_WIDTH) & (rough > _REMNANT_ROUGH))
+        if self.psf.stars:
+            # against a PSF measured on this frame: a spot far more elongated than its
+            # stars is a particle's track, whatever its width (a charge cloud diffused
+            # over two pixels is as wide as a sharp PSF), a saturated one the more so (a
+            # saturated star's clipped top is as round as its PSF)
+            excess = v["ellipticity"] - self.psf.ellipticity
+            saturated = v["raw_peak"] >= self.saturation
+            track |= (excess > _TRACK_EXCESS) | (saturated & (excess > _SATURATED_TRACK_EXCESS))
+            # a bright spot well narrower than the frame's stars across their narrowest
+            # axis (a trailed frame's stars are narrow across the trail): a particle's
+            # charge diffused over a pixel or two, as wide as a sharp PSF (0.45 px
+            # against 0.6-0.8) but not as the frame's own; at SNR 50 a star's width is
+            # known to a few percent, and a lens's field varies it far less than this
+            narrowest_psf = 1.0 - self.psf.ellipticity
+            track |= ((width < _NARROW_WIDTH * narrowest_psf) & (v["snr"] >= _NARROW_SNR)
+                      & ~saturated)
+        narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
+        sharp = judged & (narrow | (rough > self.cfg.rough_ratio))
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
-        keep = np.flatnonzero(~(sharp | merged))[: self.table.capacity]
+        broad, body = self._broad(v, sharp)
+        embedded = self._embedded(n, cand, v) & ~sharp
+        # a broad maximum with a body on most sides is part of it (a ghost's rim); a star
+        # merely wider than the frame's PSF (a corner of a lens out of focus) has its own
+        # wings on some sides
+        on_body = broad & (self.surroundings.sky_sectors[:n] < _BROAD_SKY_SECTORS)
+        masked = (body | embedded | on_body) & ~sharp
+        self.counters["masked"] = int(np.count_nonzero(masked))
+        keep = np.flatnonzero(~(sharp | merged | masked))
+        # most significant first: a bright bump in a noisy patch (glare, foliage) ranks
+        # below a star of the same height on dark sky
+        keep = keep[np.argsort(-v["snr"][keep], kind="stable")]
+        self.counters["left_out"] = max(0, len(keep) - self.table.capacity)
+        keep = keep[: self.table.capacity]
         count = len(keep)
         rows, cols = self.layout.frame_position(cand[keep])
         s = self.table.stars
@@ -301,23 +784,96 @@ class DefaultDetector:
         flags[(v["ellipticity"][keep] > self.cfg.elongation_max)
               & judged[keep]] |= StarFlag.ELONGATED
         flags[self.peaks.blended[:n][keep]] |= StarFlag.BLENDED
-        self._flag_extended(s[:count], flags)
+        flags[broad[keep]] |= StarFlag.EXTENDED
         s["flags"][:count] = flags
         return count
 
-    def _flag_extended(self, stars: np.ndarray, flags: np.ndarray) -> None:
-        """EXTENDED: effective area flux/peak above ``extended_ratio`` x the frame's median.
+    def _roughness_reference(self, v: dict, star_like: np.ndarray) -> float:
+        """What a star's pixel-scale roughness is in this frame (tracker.detect.windowed).
 
-        A point source's flux/peak is fixed by the PSF (2 pi sigma^2 for a
-        Gaussian) whatever its brightness; a nebula, comet or lit branch
-        spreads its flux wider. The frame's own median is the reference, so
-        an unknown or field-varying PSF needs no configuration. Saturated
-        stars (flat tops) are neither judged nor part of the median; fewer
-        than five unsaturated sources give no reference.
+        A point source's under the frame's PSF, or, if higher, the median of
+        the frame's bright spots that look like its stars (``star_like``:
+        width within 25 % of the PSF's, round): noise that scales with the
+        light (speckle, a fraction of a photon per pixel) roughens every star
+        alike, and a star is not rejected for it, while cosmic-ray clusters,
+        narrower or elongated, do not set the reference. Spots far rougher
+        than it (clusters of hits, touching impulses) are rejected.
         """
-        unsat = (flags & StarFlag.SATURATED) == 0
+        reference = self.point_roughness
+        bright = star_like & (v["snr"] >= _ROUGH_REFERENCE_SNR)
+        if np.count_nonzero(bright) >= 5:
+            reference = max(reference, float(np.median(v["rough"][bright])))
+        return reference
+
+    def _broad(self, v: dict, sharp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(EXTENDED, body): flux/peak above ``extended_ratio`` / ``body_ratio`` x the median.
+
+        A point source's flux/peak (its effective area) is fixed by the PSF
+        (2 pi sigma^2 for a Gaussian) whatever its brightness; a nebula,
+        comet or lit branch spreads its flux wider (EXTENDED, reported), and
+        a maximum on a ghost's disc, a planet or lit ground is as wide as the
+        window itself (a body: masked). The frame's own median is the
+        reference, so an unknown or field-varying PSF needs no configuration.
+        Saturated spots (flat tops) and rejected sharp ones are neither
+        judged nor part of the median; fewer than five such sources give no
+        reference.
+        """
+        n = len(sharp)
+        unsat = (v["raw_peak"] < self.saturation) & ~sharp
+        none = np.zeros(n, bool)
         if np.count_nonzero(unsat) < 5:
-            return
-        area = stars["flux"] / np.maximum(stars["peak"], 1e-12)
-        broad = unsat & (area > self.cfg.extended_ratio * np.median(area[unsat]))
-        flags[broad] |= StarFlag.EXTENDED
+            return none, none
+        area = v["flux"] / np.maximum(v["peak"], 1e-12)
+        reference = float(np.median(area[unsat]))
+        return (unsat & (area > self.cfg.extended_ratio * reference),
+                unsat & (area > self.cfg.body_ratio * reference))
+
+    def _embedded(self, n: int, cand: np.ndarray, v: dict) -> np.ndarray:
+        """Candidates with fewer than ``min_sky_sectors`` sky sectors around them
+        (tracker.detect.surroundings)."""
+        if self.cfg.min_sky_sectors == 0:
+            return np.zeros(n, bool)
+        level0, var0, slope = sky_noise_model(self.level, self.noise, self.saturation)
+        bg = self.cand_level[:n]                    # scratch: the background at each
+        np.take(self.bg_pad.ravel(), cand, out=bg, mode="clip")
+        sky = self.cand_noise[:n]                   # scratch from here on
+        np.subtract(bg, level0, out=sky)
+        np.maximum(sky, 0.0, out=sky)
+        np.multiply(sky, slope, out=sky)
+        np.add(sky, var0, out=sky)
+        np.sqrt(sky, out=sky)
+        sectors = self.surroundings.sky_sectors_of(n, self.input.padded, self.bg_pad, cand,
+                                                   sky, v["peak"])
+        # in or beside a textured tile (its noise well above the smooth sky's at its level)
+        # a candidate must have sky on most sides: the edge of lit terrain or foliage is
+        # ragged, and its twigs and boulders have sky on one side
+        np.subtract(self.level, level0, out=self.float_grid)
+        np.maximum(self.float_grid, 0.0, out=self.float_grid)
+        np.multiply(self.float_grid, slope, out=self.float_grid)
+        np.add(self.float_grid, var0, out=self.float_grid)
+        np.multiply(self.float_grid, _TEXTURE_NOISE ** 2, out=self.float_grid)
+        np.greater(np.square(self.noise), self.float_grid, out=self.textured)
+        self.textured |= self.level >= _SATURATED_TILE * self.saturation   # flat, but ground
+        cv2.dilate(self.textured.view(np.uint8), _TILE_NEIGHBOURS,
+                   dst=self.near_texture.view(np.uint8))
+        near = self.cand_near[:n]
+        self.grid.at(self.near_texture.view(np.uint8), cand, near)
+        need = np.where(near > 0, max(self.cfg.min_sky_sectors, _TEXTURED_SKY_SECTORS),
+                        self.cfg.min_sky_sectors)
+        embedded = sectors < need
+        # a saturated star's wings fall away from its centroid on every side (a body on
+        # one side takes no more sectors from it than from an unsaturated star)
+        clipped = embedded & (v["raw_peak"][:n] >= self.saturation)
+        rows, cols = self.layout.frame_position(cand)
+        reach = self.surroundings.max_outer + 1         # its rings stay inside the frame
+        h, w = self.input.shape
+        clipped &= (rows >= reach) & (cols >= reach) & (rows < h - reach) & (cols < w - reach)
+        clipped = np.flatnonzero(clipped)
+        if len(clipped):
+            centre = (cand[clipped] + np.rint(v["y0"][clipped]).astype(np.intp)
+                      * self.layout.stride + np.rint(v["x0"][clipped]).astype(np.intp))
+            falling = self.surroundings.falling_sectors(
+                self.input.padded, self.bg_pad, centre, sky[clipped], v["peak"][clipped],
+                _WING_LEVEL * (self.saturation - bg[clipped]))
+            embedded[clipped] = falling < need[clipped]
+        return embedded

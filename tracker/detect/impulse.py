@@ -8,7 +8,11 @@ spread by the optics, so its brightest pixel stands above the 3x3 median by
 only part of its height (0.26 for a centred Gaussian PSF of sigma 1.2 px,
 :func:`psf_contrast`); a hot pixel, or a cosmic-ray track one pixel wide,
 stands above it by all of its height. The cut-off sits between the two.
-Impulses are replaced by their 3x3 median.
+Impulses are replaced by their 3x3 median. Once the frame's PSF is known
+(:meth:`ImpulseFilter.refine`) a pixel above its median by the limit is an
+impulse also when its eight neighbours hold less than half the light a
+star of that PSF puts there (:func:`psf_ring`): the contrast alone cannot
+tell a hot pixel from a sharp star whose light falls on a pixel's corner.
 
 Impulses are counted: a pixel with no impulse among its 8 neighbours is a
 hot pixel (or a one-pixel hit); a group of touching impulse pixels is one
@@ -33,15 +37,49 @@ import numpy as np
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.slabs import SlabRunner
 
-__all__ = ["ImpulseFilter", "psf_contrast"]
+__all__ = ["ImpulseFilter", "psf_contrast", "psf_ring"]
 
 
-def psf_contrast(sigma_px: float) -> float:
-    """(peak - 3x3 median) / peak of a pixel-integrated Gaussian PSF centred on a pixel."""
-    cdf = [math.erf(e / (sigma_px * math.sqrt(2.0))) for e in (-1.5, -0.5, 0.5, 1.5)]
-    w = np.diff(cdf)
-    stamp = np.outer(w, w)
-    return float(1.0 - np.median(stamp) / stamp[1, 1])
+def psf_contrast(sigma_px: float, worst_phase: bool = False) -> float:
+    """(peak - 3x3 median) / peak of a pixel-integrated Gaussian PSF's brightest pixel.
+
+    For a star centred on a pixel, or with ``worst_phase`` the largest over
+    its sub-pixel phase (on an edge, a corner, between): a star centred on an
+    edge shares its light between two pixels, each standing far above a
+    median of fainter wings.
+    """
+    phases = (((0.0, 0.0), (0.5, 0.0), (0.5, 0.5), (0.25, 0.0), (0.25, 0.25))
+              if worst_phase else ((0.0, 0.0),))
+    worst = 0.0
+    for px, py in phases:
+        wx = np.diff([math.erf((e - px) / (sigma_px * math.sqrt(2.0)))
+                      for e in (-2.5, -1.5, -0.5, 0.5, 1.5, 2.5)])
+        wy = np.diff([math.erf((e - py) / (sigma_px * math.sqrt(2.0)))
+                      for e in (-2.5, -1.5, -0.5, 0.5, 1.5, 2.5)])
+        stamp = np.outer(wy, wx)
+        r, c = np.unravel_index(np.argmax(stamp), stamp.shape)
+        window = stamp[r - 1:r + 2, c - 1:c + 2]
+        worst = max(worst, float(1.0 - np.median(window) / stamp[r, c]))
+    return worst
+
+
+def psf_ring(sigma_px: float) -> float:
+    """Light in the 8 neighbours of a pixel-integrated Gaussian PSF's brightest pixel, over
+    that pixel's: the least over sub-pixel phase (a star centred on a pixel).
+
+    A hot pixel has only noise around it; a star however sharp has its wings
+    there (0.86 of its peak at sigma 0.45 px, 1.75 at 0.6 px).
+    """
+    least = math.inf
+    for px, py in ((0.0, 0.0), (0.5, 0.0), (0.5, 0.5), (0.25, 0.0), (0.25, 0.25)):
+        edges = (-2.5, -1.5, -0.5, 0.5, 1.5, 2.5)
+        wx = np.diff([math.erf((e - px) / (sigma_px * math.sqrt(2.0))) for e in edges])
+        wy = np.diff([math.erf((e - py) / (sigma_px * math.sqrt(2.0))) for e in edges])
+        stamp = np.outer(wy, wx)
+        r, c = np.unravel_index(np.argmax(stamp), stamp.shape)
+        peak = stamp[r, c]
+        least = min(least, float(stamp[r - 1:r + 2, c - 1:c + 2].sum() - peak) / peak)
+    return least
 
 
 class _TestBuffers:
@@ -79,6 +117,9 @@ def _median3(src: np.ndarray, dst: np.ndarray) -> None:
 # Neighbour offsets (dy, dx): all eight, and the four met before a pixel in raster order.
 _EIGHT = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 _BEFORE = 4
+_REFINE_PASSES = 2
+_GROW_STEPS = 2        # rounds of adding the neighbours of replaced pixels
+_GROW_LIMIT = 0.5      # ... tested against this fraction of the first pass's limit
 
 
 class ImpulseFilter:
@@ -106,6 +147,25 @@ class ImpulseFilter:
         self.neighbour_offsets = np.array([dy * stride + dx for dy, dx in _EIGHT], np.intp)
         self.marks = np.zeros(layout.full_shape[0] * stride, np.uint8)
         self.neighbour_index = np.zeros((self.capacity, 8), np.intp)
+        self.window_index = np.zeros((self.capacity, 9), np.intp)
+        self.window_offsets = np.array([dy * stride + dx for dy in (-1, 0, 1)
+                                        for dx in (-1, 0, 1)], np.intp)
+        self.window_values = np.zeros((self.capacity, 9), dtype)
+        self.replaced = np.zeros(self.capacity, np.bool_)
+        self.ring = np.zeros(self.capacity, np.float32)
+        self.lone = np.zeros(self.capacity, np.bool_)
+        self._dense = False
+        self.flags = np.zeros(self.capacity, np.bool_)
+        self.tmp_flags = np.zeros(self.capacity, np.bool_)
+        # growing and clearing tracks: up to 9 pixels around each candidate
+        self.area = np.zeros(9 * self.capacity, np.intp)
+        self.area_values = np.zeros((3, 9 * self.capacity), np.float32)
+        self.area_reads = np.zeros(9 * self.capacity, dtype)
+        self.area_high = np.zeros(9 * self.capacity, np.bool_)
+        self.numbers = np.arange(1, 9 * self.capacity + 1, dtype=np.int32)
+        self.stamp = np.zeros(layout.full_shape[0] * stride, np.int32)
+        self.stamp_reads = np.zeros(9 * self.capacity, np.int32)
+        self._n = 0
         self.neighbours = np.zeros((self.capacity, 8), np.uint8)
         self.any_before = np.zeros(self.capacity, np.uint8)
         self.any_after = np.zeros(self.capacity, np.uint8)
@@ -122,12 +182,15 @@ class ImpulseFilter:
         counts = self.counts
         for key in counts:
             counts[key] = 0
+        self._n = 0
+        self._dense = False
         self.slabs.run(_median3, work, self.median)
         self.slabs.rows(lambda a, b: self._first_cut(work[a:b], limit[a:b], a, b))
         n = self.layout.nonzero(self.mask_pad, self.index)
         if n == 0:
             return counts
         if n > self.capacity:
+            self._dense = True
             imp = _impulse_test(work_pad, self.median_pad, bg_pad, limit_pad, self.contrast,
                                 self.dense, work_pad.shape[0])
             np.copyto(work_pad, self.median_pad, where=imp)
@@ -135,6 +198,213 @@ class ImpulseFilter:
             return counts
         self._sparse(n, work_pad, bg_pad, limit_pad)
         return counts
+
+    def spared_maxima(self, work_pad: np.ndarray, bg_pad: np.ndarray) -> np.ndarray | None:
+        """Padded flat indices of the last :meth:`run`'s candidates it did not replace that
+        are local maxima of ``work_pad`` (not below any of their eight neighbours), or None
+        after a whole-frame pass (no list was kept).
+
+        A star's peak stands above its 3x3 median by more than the limit once it is a
+        few times the noise, and the contrast test spares it: the bright stars of a
+        frame are among these, found without another pass over the frame.
+        """
+        if self._dense:
+            return None
+        n = self._n
+        if n == 0:
+            return self.index[:0]
+        idx = self.index[:n]
+        flat = work_pad.ravel()
+        nb_index = self.neighbour_index[:n]
+        np.add(idx[:, None], self.neighbour_offsets[None, :], out=nb_index)
+        np.take(flat, nb_index, out=self.window_values[:n, :8], mode="clip")
+        np.max(self.window_values[:n, :8], axis=1, out=self.reads[:n])
+        np.take(flat, idx, out=self.window_values[:n, 8], mode="clip")
+        peak = self.flags[:n]
+        np.greater_equal(self.window_values[:n, 8], self.reads[:n], out=peak)
+        np.logical_and(peak, ~self.replaced[:n], out=peak)
+        return np.compress(peak, idx)
+
+    def refine(self, work_pad: np.ndarray, bg_pad: np.ndarray, limit_pad: np.ndarray,
+               contrast: float, ring: float = 0.0) -> dict:
+        """Test the last :meth:`run`'s candidates again with ``contrast``, and grow; counts.
+
+        ``ring``: a candidate above its median by the limit whose eight
+        neighbours hold less than ``ring`` times its height above the
+        background is an impulse too (0: no such test).
+
+        :meth:`run` must use a contrast safe for the sharpest PSF the frame
+        might have; once the frame's own PSF is known, a lower contrast (a
+        star of that PSF can stand only so far above its 3x3 median) catches
+        impulses on star wings and the partners of touching impulses, whose
+        median the first pass's replacements have since lowered. Each
+        replaced pixel takes the median of its neighbourhood as it now is (a
+        track's neighbours were replaced too, so its first median was too
+        high). Then the replaced pixels' neighbours join the candidates with
+        half the limit (``limit_pad`` is ``k_sigma`` times the noise): the
+        wings of a track whose charge diffused over two or three pixels,
+        which stand out only once its core is gone. Only the sparse path is
+        refined; after a whole-frame pass nothing changes.
+        """
+        n = self._n
+        if n == 0:
+            return self.counts
+        for step in range(_GROW_STEPS + 1):
+            if step:
+                n = self._grow(n, work_pad, bg_pad, limit_pad)
+            self._retest(n, work_pad, min(contrast, self.contrast), ring)
+        self._count(n, self.index[:n], self.replaced[:n])
+        self._clear_tracks(n, work_pad, bg_pad, limit_pad)
+        return self.counts
+
+    def _clear_tracks(self, n: int, work_pad: np.ndarray, bg_pad: np.ndarray,
+                      limit_pad: np.ndarray) -> None:
+        """Set the 3x3 around every track pixel to the background where it stands above it.
+
+        A track pixel is a replaced pixel with a replaced neighbour. Along a
+        track two or three pixels wide the 3x3 medians that replaced it are
+        themselves lifted by the track, and what is left (a faint ridge) is a
+        star to the matched filter; the background has no such memory.
+        Pixels more than half the limit above the background become the
+        background (rounded); the rest are noise and stay. Only track pixels
+        on open sky are cleared (their replacement is within the limit of the
+        background): on a star's core, where the spikes of speckle or a track
+        across the star sit, the neighbourhood is the star's light.
+        """
+        idx = self.index[:n]
+        track = self._track_pixels(n)
+        # ... on open sky: its replacement (its neighbourhood's median) is within the
+        # limit of the background; on a star's core (speckle, a track across a star)
+        # the neighbourhood is the star, and it stays
+        w, m, b, lim = (v[:n] for v in self.values)
+        np.take(work_pad.ravel(), idx, out=self.reads[:n], mode="clip")
+        np.copyto(w, self.reads[:n])
+        np.subtract(w, b, out=w)
+        np.less(w, lim, out=self.tmp_flags[:n])
+        np.logical_and(track, self.tmp_flags[:n], out=track)
+        k = int(np.count_nonzero(track))
+        if k == 0:
+            return
+        area = self.area[: 9 * k].reshape(k, 9)
+        np.add(np.compress(track, idx)[:, None], self.window_offsets[None, :], out=area)
+        area = area.ravel()
+        values, background, limit = (a[: 9 * k] for a in self.area_values)
+        np.take(work_pad.ravel(), area, out=self.area_reads[: 9 * k], mode="clip")
+        np.copyto(values, self.area_reads[: 9 * k])
+        np.take(bg_pad.ravel(), area, out=background, mode="clip")
+        np.take(limit_pad.ravel(), area, out=self.area_reads[: 9 * k], mode="clip")
+        np.copyto(limit, self.area_reads[: 9 * k])
+        np.subtract(values, background, out=values)
+        np.multiply(limit, _GROW_LIMIT, out=limit)
+        high = self.area_high[: 9 * k]
+        np.greater(values, limit, out=high)
+        np.maximum(background, 0.0, out=background)
+        np.rint(background, out=background)
+        np.copyto(values, background)
+        np.copyto(self.area_reads[: 9 * k], values, casting="unsafe")
+        flat = work_pad.ravel()
+        np.copyto(values, flat[0])                       # scratch not needed past here
+        kept = np.compress(high, area)
+        np.put(flat, kept, np.compress(high, self.area_reads[: 9 * k]), mode="clip")
+
+    def _neighbour_marks(self, n: int, idx: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """(n, 8) view: 1 where each listed pixel's neighbour (``_EIGHT`` order) is marked.
+
+        ``mask`` (n,) marks the listed pixels ``idx``; the marks are cleared again.
+        """
+        marks = self.marks
+        np.put(marks, idx, mask.view(np.uint8), mode="clip")
+        nb_index = self.neighbour_index[:n]
+        np.add(idx[:, None], self.neighbour_offsets[None, :], out=nb_index)
+        nb = self.neighbours[:n]
+        np.take(marks, nb_index, out=nb, mode="clip")
+        np.put(marks, idx, 0, mode="clip")
+        return nb
+
+    def _track_pixels(self, n: int) -> np.ndarray:
+        """Mask (a view of ``flags``) of the replaced candidates with a replaced neighbour."""
+        replaced = self.replaced[:n]
+        nb = self._neighbour_marks(n, self.index[:n], replaced)
+        np.max(nb, axis=1, out=self.any_after[:n])
+        track = self.flags[:n]
+        np.logical_and(replaced, self.any_after[:n], out=track)
+        return track
+
+    def _retest(self, n: int, work_pad: np.ndarray, contrast: float, ring: float) -> None:
+        idx = self.index[:n]
+        w, m, b, lim = (v[:n] for v in self.values)
+        flat = work_pad.ravel()
+        nb_index = self.window_index[:n]
+        np.add(idx[:, None], self.window_offsets[None, :], out=nb_index)
+        window = self.window_values[:n]
+        replaced = self.replaced[:n]
+        around, lone = self.ring[:n], self.lone[:n]
+        for _ in range(_REFINE_PASSES):
+            np.take(flat, nb_index, out=window, mode="clip")
+            if ring > 0.0:
+                # the neighbours' light above the background (the window less its centre)
+                np.sum(window, axis=1, out=around, dtype=np.float32)
+                np.subtract(around, window[:, 4], out=around)
+                np.subtract(around, 8.0 * b, out=around)
+            window.partition(4, axis=1)
+            np.copyto(m, window[:, 4])
+            np.take(flat, idx, out=self.reads[:n], mode="clip")
+            np.copyto(w, self.reads[:n])
+            np.copyto(w, m, where=replaced)
+            imp = _impulse_test(w, m, b, lim, contrast, self.sparse, n)
+            if ring > 0.0:
+                t1, t2 = self.sparse.t1[:n], self.sparse.t2[:n]
+                np.subtract(w, b, out=t1)                        # height
+                np.multiply(t1, ring, out=t1)
+                np.less(around, t1, out=lone)
+                np.subtract(w, m, out=t2)
+                np.greater(t2, lim, out=self.tmp_flags[:n])      # above its median by the limit
+                np.logical_and(lone, self.tmp_flags[:n], out=lone)
+                np.logical_or(imp, lone, out=imp)
+            np.copyto(w, m, where=imp)
+            np.put(flat, idx, w, mode="clip")
+            np.logical_or(replaced, imp, out=replaced)
+
+    def _grow(self, n: int, work_pad: np.ndarray, bg_pad: np.ndarray,
+              limit_pad: np.ndarray) -> int:
+        """Append the unlisted neighbours of track pixels (replaced pixels with a replaced
+        neighbour) to the candidates; new count. A lone hot pixel has no wings to grow
+        into, and growing from it would take the spiky pixels of faint stars in
+        photon-starved frames."""
+        idx = self.index[:n]
+        replaced = self._track_pixels(n)
+        hits = int(np.count_nonzero(replaced))
+        room = self.capacity - n
+        if hits == 0 or room <= 0:
+            return n
+        near = self.area[: 8 * hits].reshape(hits, 8)
+        np.add(np.compress(replaced, idx)[:, None], self.neighbour_offsets[None, :], out=near)
+        near = near.ravel()
+        # keep each unlisted pixel once: every entry stamps its own number on its pixel,
+        # and the entry whose number survives is the one kept
+        stamp = self.stamp
+        count = len(near)
+        np.put(stamp, idx, -1, mode="clip")
+        np.put(stamp, near, self.numbers[:count], mode="clip")
+        np.put(stamp, idx, -1, mode="clip")
+        own = self.area_reads[:count]
+        keep = self.area_high[:count]
+        np.take(stamp, near, out=self.stamp_reads[:count], mode="clip")
+        np.equal(self.stamp_reads[:count], self.numbers[:count], out=keep)
+        new_pixels = np.compress(keep, near)[:room]
+        np.put(stamp, near, 0, mode="clip")
+        np.put(stamp, idx, 0, mode="clip")
+        del own
+        k = len(new_pixels)
+        if k == 0:
+            return n
+        new = slice(n, n + k)
+        self.index[new] = new_pixels
+        np.take(limit_pad.ravel(), new_pixels, out=self.reads[:k], mode="clip")
+        np.multiply(self.reads[:k], _GROW_LIMIT, out=self.values[3][new], casting="unsafe")
+        np.take(bg_pad.ravel(), new_pixels, out=self.values[2][new], mode="clip")
+        self.replaced[new] = False
+        return n + k
 
     def _first_cut(self, work: np.ndarray, limit: np.ndarray, a: int, b: int) -> None:
         """mask = |work - median| > limit on rows [a, b) of the frame."""
@@ -154,6 +424,8 @@ class ImpulseFilter:
         imp = _impulse_test(w, m, b, lim, self.contrast, self.sparse, n)
         np.copyto(w, m, where=imp)
         np.put(flat, idx, w, mode="clip")
+        np.copyto(self.replaced[:n], imp)
+        self._n = n
         self._count(n, idx, imp)
 
     def _count(self, n: int, idx: np.ndarray, imp: np.ndarray) -> None:
@@ -163,12 +435,7 @@ class ImpulseFilter:
         counts["impulse_pixels"] = total
         if total == 0:
             return
-        marks = self.marks
-        np.put(marks, idx, imp.view(np.uint8), mode="clip")
-        nb_index = self.neighbour_index[:n]
-        np.add(idx[:, None], self.neighbour_offsets[None, :], out=nb_index)
-        nb = self.neighbours[:n]
-        np.take(marks, nb_index, out=nb, mode="clip")
+        nb = self._neighbour_marks(n, idx, imp)
         before, after = self.any_before[:n], self.any_after[:n]
         np.max(nb[:, :_BEFORE], axis=1, out=before)
         np.max(nb[:, _BEFORE:], axis=1, out=after)
@@ -178,4 +445,3 @@ class ImpulseFilter:
         starts = int(np.count_nonzero(imp & (before == 0)))
         counts["hot_pixels"] = hot
         counts["cosmic_rays"] = starts - hot
-        marks[idx] = 0

@@ -46,11 +46,13 @@ class PeakFinder:
     """Local maxima of a filtered image held in padded buffers of ``layout``.
 
     The threshold test runs on the row slabs of ``slabs``
-    (tracker.detect.slabs), if given.
+    (tracker.detect.slabs), if given. The image and its threshold are of
+    ``dtype`` (float32, or uint16 for a search of the unfiltered frame).
     """
 
     def __init__(self, layout: PaddedLayout, radius: int, dip_sigma: float,
-                 pixel_capacity: int, capacity: int, slabs: SlabRunner | None = None) -> None:
+                 pixel_capacity: int, capacity: int, slabs: SlabRunner | None = None,
+                 dtype: type = np.float32) -> None:
         self.slabs = slabs or SlabRunner(layout.rows, layout.cols, 0, 1, np.float32)
         self.layout = layout
         self.stride = layout.stride
@@ -59,14 +61,38 @@ class PeakFinder:
         self.capacity = int(capacity)
         self.mask_pad, self.mask = layout.buffer(np.uint8)
         self.pixels = np.zeros(self.pixel_capacity, np.intp)
-        self.pixel_values = np.zeros(self.pixel_capacity, np.float32)
+        self.pixel_values = np.zeros(self.pixel_capacity, dtype)
         self.neighbour_index = np.zeros((self.pixel_capacity, 8), np.intp)
-        self.neighbours = np.zeros((self.pixel_capacity, 8), np.float32)
-        self.before = np.zeros(self.pixel_capacity, np.float32)
-        self.after = np.zeros(self.pixel_capacity, np.float32)
+        self.neighbours = np.zeros((self.pixel_capacity, 8), dtype)
+        self.before = np.zeros(self.pixel_capacity, dtype)
+        self.after = np.zeros(self.pixel_capacity, dtype)
         self.is_max = np.zeros(self.pixel_capacity, np.bool_)
         self.tmp = np.zeros(self.pixel_capacity, np.bool_)
         self.offsets8 = np.array([dy * self.stride + dx for dy, dx in _ORDER], np.intp)
+        self.rank = np.zeros(layout.full_shape[0] * self.stride, np.int32)
+        self.cand = np.zeros(self.capacity, np.intp)
+        self.cand_values = np.zeros(self.capacity, np.float32)
+        self.cand_noise = np.zeros(self.capacity, np.float32)
+        self.cand_bg = np.zeros(self.capacity, np.float32)
+        self.nearest = np.zeros(self.capacity, np.intp)
+        self.line_index = np.zeros((self.capacity, len(_LINE_STEPS)), np.intp)
+        self.line_values = np.zeros((self.capacity, len(_LINE_STEPS)), dtype)
+        self.saddle = np.zeros(self.capacity, np.float32)
+        self.keep = np.zeros(self.capacity, np.bool_)
+        self.blended = np.zeros(self.capacity, np.bool_)
+        self.ranks = np.arange(1, self.capacity + 1, dtype=np.int32)
+        self.crowded = False
+        self._n_pixels = 0
+        self.radius = -1
+        self._pair_room = 0
+        self.configure(radius)
+
+    def configure(self, radius: int) -> None:
+        """Pairs: candidates closer than ``radius`` px (kept between frames if unchanged)."""
+        radius = int(radius)
+        if radius == self.radius:
+            return
+        self.radius = radius
         # Neighbourhood for pairs: every offset within radius, with the line samples to it.
         dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
         keep = (dy ** 2 + dx ** 2 <= radius ** 2) & ((dy != 0) | (dx != 0))
@@ -75,22 +101,12 @@ class PeakFinder:
         line = [np.rint(t * dy) * self.stride + np.rint(t * dx) for t in _LINE_STEPS]
         self.line_offsets = np.stack(line, axis=1).astype(np.intp)  # (P, 3)
         p = len(self.pair_offsets)
-        self.rank = np.zeros(layout.full_shape[0] * self.stride, np.int32)
-        self.cand = np.zeros(self.capacity, np.intp)
-        self.cand_values = np.zeros(self.capacity, np.float32)
-        self.cand_noise = np.zeros(self.capacity, np.float32)
-        self.cand_bg = np.zeros(self.capacity, np.float32)
-        self.pair_index = np.zeros((self.capacity, p), np.intp)
-        self.pair_rank = np.zeros((self.capacity, p), np.int32)
-        self.nearest = np.zeros(self.capacity, np.intp)
-        self.line_index = np.zeros((self.capacity, len(_LINE_STEPS)), np.intp)
-        self.line_values = np.zeros((self.capacity, len(_LINE_STEPS)), np.float32)
-        self.saddle = np.zeros(self.capacity, np.float32)
-        self.keep = np.zeros(self.capacity, np.bool_)
-        self.blended = np.zeros(self.capacity, np.bool_)
-        self.ranks = np.arange(1, self.capacity + 1, dtype=np.int32)
-        self.crowded = False
-        self._n_pixels = 0
+        if p > self._pair_room:   # buffers grow to the widest radius used, never shrink
+            self._pair_room = p
+            self._pair_index = np.zeros(self.capacity * p, np.intp)
+            self._pair_rank = np.zeros(self.capacity * p, np.int32)
+        self.pair_index = self._pair_index[: self.capacity * p].reshape(self.capacity, p)
+        self.pair_rank = self._pair_rank[: self.capacity * p].reshape(self.capacity, p)
 
     def find(self, filt_pad: np.ndarray, filt: np.ndarray, threshold: np.ndarray,
              bg_pad: np.ndarray, raise_threshold, noise_at) -> int:
@@ -160,8 +176,8 @@ class PeakFinder:
             return 0
         n_px = self._n_pixels
         maxima = np.compress(self.is_max[:n_px], self.pixels[:n_px])
-        values = np.compress(self.is_max[:n_px], self.pixel_values[:n_px])
-        values -= np.take(bg_pad.ravel(), maxima, mode="clip")
+        values = np.subtract(np.compress(self.is_max[:n_px], self.pixel_values[:n_px]),
+                             np.take(bg_pad.ravel(), maxima, mode="clip"), dtype=np.float32)
         order = np.argsort(-values, kind="stable")[: self.capacity]
         if m > self.capacity:
             self.crowded = True

@@ -44,16 +44,29 @@ class Detections:
     """Stars found in one frame, with diagnostics.
 
     ``reason`` is None for a normal frame, or a short code (``"empty"``,
-    ``"saturated"``, ``"bad_dtype"``, ``"non_finite"``, ``"wrong_shape"``...)
-    saying why the frame gave no or flagged results. ``counters`` holds
-    what was rejected (``hot_pixels``, ``cosmic_rays``...), ``stages_ms`` the
-    time per stage in milliseconds.
+    ``"saturated"``, ``"bad_dtype"``, ``"non_finite"``, ``"wrong_shape"``,
+    ``"too_many"``...) saying why the frame gave no or flagged results.
+    ``counters`` holds what was rejected (``hot_pixels``, ``cosmic_rays``...)
+    and ``left_out``, the stars found beyond ``detect.max_stars`` (the
+    faintest, not reported); ``stages_ms`` the time per stage in
+    milliseconds.
+
+    The PSF the frame was measured with (the default method; None for the
+    others): ``psf_sigma_px``, the optics' Gaussian-equivalent sigma (FWHM =
+    2.3548 sigma), ``psf_ellipticity`` (a^2 - b^2) / (a^2 + b^2) of its axes,
+    ``psf_angle_deg`` of its long axis from +x toward +y, and ``psf_stars``,
+    how many of this frame's stars measured it (0: the previous estimate or
+    ``detect.psf_sigma_px`` was used).
     """
 
     stars: np.ndarray
     reason: str | None = None
     counters: dict = field(default_factory=dict)
     stages_ms: dict = field(default_factory=dict)
+    psf_sigma_px: float | None = None
+    psf_ellipticity: float | None = None
+    psf_angle_deg: float | None = None
+    psf_stars: int = 0
 
     @property
     def count(self) -> int:

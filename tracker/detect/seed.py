@@ -1,4 +1,4 @@
-"""The dissertation's pipeline ("seed method"), as ../shared/SEED-METHOD.md states it.
+"""The dissertation's pipeline ("seed method"), as docs/seed-method.md states it.
 
 1. Gaussian blur, 7x7 kernel, sigma 1.5 px (``detect.seed_blur_sigma_px``,
    ``detect.seed_blur_ksize_px``).

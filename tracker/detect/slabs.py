@@ -26,7 +26,10 @@ __all__ = ["SlabRunner"]
 
 
 class SlabRunner:
-    """Applies ``op(src, dst)`` to (rows, cols) images of ``dtype`` in ``threads`` slabs."""
+    """Applies ``op(src, dst)`` to (rows, cols) images of ``dtype`` in ``threads`` slabs.
+
+    ``halo`` is the largest reach of the filters it will run.
+    """
 
     def __init__(self, rows: int, cols: int, halo: int, threads: int, dtype: type) -> None:
         self.halo = int(halo)
@@ -54,10 +57,16 @@ class SlabRunner:
             job.result()
 
     def run(self, op: Callable[[np.ndarray, np.ndarray], object], src: np.ndarray,
-            dst: np.ndarray) -> None:
-        """dst = op(src) over the whole frame; ``src`` and ``dst`` do not overlap."""
+            dst: np.ndarray, halo: int | None = None) -> None:
+        """dst = op(src) over the whole frame; ``src`` and ``dst`` do not overlap.
+
+        ``halo``: the reach of this ``op``, at most the constructor's (default).
+        """
         self.rows(lambda a, b: op(src[a:b], dst[a:b]))
-        h = self.halo
+        h = self.halo if halo is None else min(int(halo), self.halo)
+        if h == 0:
+            return
         for (cut, _), strip in zip(self.slabs[1:], self.strips, strict=True):
-            op(src[cut - 2 * h:cut + 2 * h], strip)
-            np.copyto(dst[cut - h:cut + h], strip[h:3 * h])
+            part = strip[:4 * h]
+            op(src[cut - 2 * h:cut + 2 * h], part)
+            np.copyto(dst[cut - h:cut + h], part[h:3 * h])

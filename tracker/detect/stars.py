@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from tracker.detect.result import STAR_DTYPE, Detections
@@ -17,6 +19,13 @@ class StarTable:
         self.stars = np.zeros(self.capacity, STAR_DTYPE)
 
     def result(self, count: int, reason: str | None, counters: dict,
-               stages_ms: dict) -> Detections:
-        """Detections viewing the first ``count`` rows (valid until the next frame)."""
-        return Detections(self.stars[:count], reason, counters, stages_ms)
+               stages_ms: dict, psf=None) -> Detections:
+        """Detections viewing the first ``count`` rows (valid until the next frame).
+
+        ``psf``: the frame's tracker.detect.psf.PsfEstimate, if the method has one.
+        """
+        if psf is None:
+            return Detections(self.stars[:count], reason, counters, stages_ms)
+        return Detections(self.stars[:count], reason, counters, stages_ms,
+                          psf_sigma_px=psf.sigma_px, psf_ellipticity=psf.ellipticity,
+                          psf_angle_deg=math.degrees(psf.angle_rad), psf_stars=psf.stars)

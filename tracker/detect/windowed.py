@@ -38,74 +38,120 @@ from __future__ import annotations
 
 import numpy as np
 
+from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.multiplicative import MultiplicativeFit
 
-__all__ = ["WindowedCentroider"]
+__all__ = ["WindowedCentroider", "second_moments"]
+
+# The fit (tracker.detect.fit) refines stars at least this significant: fainter ones are
+# background-limited, where the windowed centroid is the maximum-likelihood centre and
+# its pixel-phase bias (< 0.03 px at sigma 0.6) is far inside their noise.
+_FIT_MIN_SNR = 10.0
 
 
 class WindowedCentroider:
     """Gaussian-windowed centroids in a padded image with rows of ``stride`` pixels.
 
     The image is of ``dtype`` (float32 or uint16), its background float32.
+    Windows of up to ``max_radius`` are supported; :meth:`configure` sets
+    the radius and the weight's sigma (the frame's PSF) and may be called
+    between frames. Stars are measured ``chunk`` at a time, so the working
+    buffers hold ``chunk`` windows whatever ``capacity`` (the most stars
+    per frame) is. With ``fit`` (tracker.detect.fit) the centres of each
+    chunk's significant, unblended stars are then refined by a fit of the
+    pixel-integrated PSF (the shape figures stay those of the windowed
+    centre).
     """
 
-    def __init__(self, stride: int, radius: int, weight_sigma: float, gain: float,
-                 iterations: int, tolerance: float, max_shift: float, capacity: int,
-                 dtype: type = np.float32) -> None:
-        dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+    def __init__(self, stride: int, max_radius: int, gain: float, iterations: int,
+                 tolerance: float, max_shift: float, capacity: int, dtype: type = np.float32,
+                 chunk: int = 256, fit: PixelGaussianFit | None = None) -> None:
         self.stride = int(stride)
-        self.offsets = (dy * stride + dx).ravel().astype(np.intp)
-        self.dx = dx.ravel().astype(np.float64)
-        self.dy = dy.ravel().astype(np.float64)
-        self.side = 2 * radius + 1
-        self.axis = np.arange(-radius, radius + 1, dtype=np.float64)
-        centre = (np.abs(dx) <= 1) & (np.abs(dy) <= 1)
-        self.centre = np.flatnonzero(centre.ravel())
-        k = len(self.offsets)
-        self.inv_two_w2 = 1.0 / (2.0 * weight_sigma ** 2)
-        self.gain = float(gain)
+        self.max_radius = int(max_radius)
+        self.base_gain = float(gain)
         self.iterations = int(iterations)
         self.tolerance = float(tolerance)
         self.max_shift = float(max_shift)
-        c = int(capacity)
-        self.index = np.zeros((c, k), np.intp)
-        self.win = np.zeros((c, k), dtype)
-        self.bgwin = np.zeros((c, k), np.float32)
-        self.s = np.zeros((c, k), np.float64)
-        self.ex = np.zeros((c, k), np.float64)
-        self.ey = np.zeros((c, k), np.float64)
-        self.w = np.zeros((c, k), np.float64)
-        self.ws = np.zeros((c, k), np.float64)
-        self.t = np.zeros((c, k), np.float64)
-        # per-axis offsets, weights and weighted profiles, (c, side)
-        self.axis_work = np.zeros((6, c, self.side), np.float64)
+        self.chunk = int(chunk)
+        self.fit = fit
+        c, k = self.chunk, (2 * self.max_radius + 1) ** 2
+        side = 2 * self.max_radius + 1
+        self._index = np.zeros(c * k, np.intp)
+        self._win = np.zeros(c * k, dtype)
+        self._bgwin = np.zeros(c * k, np.float32)
+        self._f64 = {name: np.zeros(c * k, np.float64)
+                     for name in ("s", "ex", "ey", "w", "ws", "t")}
+        self._axis_work = np.zeros(6 * c * side, np.float64)
         names = ("x0", "y0", "sum_ws", "sum_x", "sum_y", "step", "flux", "weighted", "sum_w2",
-                 "mxx", "myy", "mxy", "size", "ellipticity", "snr", "peak", "raw_peak", "npix")
-        self.v = {name: np.zeros(c, np.float64) for name in names}
+                 "mxx", "myy", "mxy", "size", "ellipticity", "snr", "peak", "raw_peak", "npix",
+                 "rough")
+        self.v = {name: np.zeros(int(capacity), np.float64) for name in names}
+        self.radius = -1
+        self.weight_sigma = 0.0
+
+    def configure(self, radius: int, weight_sigma: float) -> None:
+        """Windows of (2 radius + 1)^2 pixels weighted by a Gaussian of ``weight_sigma`` px."""
+        radius = int(radius)
+        if radius > self.max_radius:
+            raise ValueError(f"window radius {radius} exceeds the centroider's {self.max_radius}")
+        if radius != self.radius:
+            dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+            self.offsets = (dy * self.stride + dx).ravel().astype(np.intp)
+            self.dx = dx.ravel().astype(np.float64)
+            self.dy = dy.ravel().astype(np.float64)
+            self.side = 2 * radius + 1
+            self.axis = np.arange(-radius, radius + 1, dtype=np.float64)
+            centre = (np.abs(dx) <= 1) & (np.abs(dy) <= 1)
+            self.centre = np.flatnonzero(centre.ravel())
+            self.radius = radius
+        self.weight_sigma = float(weight_sigma)
+        self.inv_two_w2 = 1.0 / (2.0 * self.weight_sigma ** 2)
+        self.gain = self.base_gain
+
+    def _chunk_views(self, m: int) -> dict:
+        k = len(self.offsets)
+        views = {name: buf[: m * k].reshape(m, k) for name, buf in self._f64.items()}
+        views["index"] = self._index[: m * k].reshape(m, k)
+        views["win"] = self._win[: m * k].reshape(m, k)
+        views["bgwin"] = self._bgwin[: m * k].reshape(m, k)
+        views["axis"] = self._axis_work[: 6 * m * self.side].reshape(6, m, self.side)
+        return views
 
     def measure(self, n: int, image_pad: np.ndarray, bg_pad: np.ndarray, cand: np.ndarray,
-                noise: np.ndarray, level: np.ndarray) -> dict:
+                noise: np.ndarray, level: np.ndarray, saturation: float = np.inf,
+                blended: np.ndarray | None = None) -> dict:
         """Measure the ``n`` stars at padded flat indices ``cand[:n]``; views of length n.
 
         ``image_pad`` holds the frame and ``bg_pad`` its background, both padded
         the same way; ``level`` (n,) a further background offset per star and
-        ``noise`` (n,) the background noise at each star, ADU.
+        ``noise`` (n,) the background noise at each star, ADU. With a fit,
+        pixels at or above ``saturation`` (ADU) are left out of it, and stars
+        marked in ``blended`` (n,) keep their windowed centres: a single
+        star's model fitted to a window holding two is pulled between them,
+        while the Gaussian weight keeps most of the neighbour out.
         """
         v = {name: arr[:n] for name, arr in self.v.items()}
-        if n == 0:
-            return v
-        idx = self.index[:n]
-        np.add(cand[:n, None], self.offsets[None, :], out=idx)
-        win, bgwin, s = self.win[:n], self.bgwin[:n], self.s[:n]
+        for a in range(0, n, self.chunk):
+            b = min(n, a + self.chunk)
+            part = {name: arr[a:b] for name, arr in v.items()}
+            self._measure_chunk(b - a, image_pad, bg_pad, cand[a:b], noise[a:b], level[a:b],
+                                saturation, None if blended is None else blended[a:b], part)
+        return v
+
+    def _measure_chunk(self, m: int, image_pad, bg_pad, cand, noise, level, saturation,
+                       blended, v: dict) -> None:
+        c = self._chunk_views(m)
+        idx, win, bgwin, s = c["index"], c["win"], c["bgwin"], c["s"]
+        np.add(cand[:, None], self.offsets[None, :], out=idx)
         np.take(image_pad.ravel(), idx, out=win, mode="clip")
         np.take(bg_pad.ravel(), idx, out=bgwin, mode="clip")
         np.subtract(win, bgwin, out=s)
-        np.subtract(s, level[:n, None], out=s)
+        np.subtract(s, level[:, None], out=s)
         x0, y0 = v["x0"], v["y0"]
         x0.fill(0.0)
         y0.fill(0.0)
         for _ in range(self.iterations):
-            self._profiles(n, x0, y0, v)
+            self._profiles(m, c, x0, y0, v)
             step = v["step"]
             self._shift(v["sum_x"], v["sum_ws"], x0)
             np.abs(v["sum_x"], out=step)
@@ -114,73 +160,41 @@ class WindowedCentroider:
             np.abs(v["sum_y"], out=step)
             if max(biggest, float(step.max())) < self.tolerance:
                 break
-        self._weights(n, x0, y0)
-        self._photometry(n, v, noise)
-        return v
+        self._weights(c, x0, y0)
+        self._photometry(m, c, v, noise)
+        if self.fit is not None:
+            fit = v["snr"] >= _FIT_MIN_SNR
+            if blended is not None:
+                fit &= ~blended
+            rows = np.flatnonzero(fit)
+            if len(rows):
+                x, y = x0[rows], y0[rows]
+                self.fit.run(len(rows), s[rows], win[rows], x, y, noise[rows], saturation,
+                             self.max_shift)
+                x0[rows], y0[rows] = x, y
 
-    def refine_clipped(self, n: int, saturation: float, sigma: float, noise: np.ndarray,
-                       iterations: int = 6) -> None:
-        """Re-centre saturated stars by fitting a Gaussian to their unclipped pixels.
-
-        A clipped core is flat, so the windowed centroid of a saturated star
-        is pulled by the pixel grid. For each of the first ``n`` stars whose
-        raw peak reached ``saturation`` (ADU), Gauss-Newton fits amplitude
-        and centre of a Gaussian of ``sigma`` px (the pixel-integrated PSF)
-        to the pixels below ``saturation``, weighted by 1 / (signal +
-        noise^2). Updates ``x0``/``y0`` in place; the few saturated stars of
-        a frame make this cheap, and it allocates only for them.
-        """
-        v = self.v
-        rows = np.flatnonzero(v["raw_peak"][:n] >= saturation)
-        if len(rows) == 0:
-            return
-        s = self.s[rows]
-        usable = self.win[rows] < saturation
-        weight = usable / (np.maximum(s, 0.0) + np.square(noise[rows, None]) + 1e-6)
-        x, y = v["x0"][rows].copy(), v["y0"][rows].copy()
-        inv_s2 = 1.0 / sigma ** 2
-        for _ in range(iterations):
-            ex = self.dx[None, :] - x[:, None]
-            ey = self.dy[None, :] - y[:, None]
-            g = np.exp(-0.5 * inv_s2 * (ex * ex + ey * ey))
-            amp = (weight * g * s).sum(axis=1) / np.maximum((weight * g * g).sum(axis=1),
-                                                            1e-30)
-            resid = s - amp[:, None] * g
-            jac = np.stack([amp[:, None] * g * ex * inv_s2, amp[:, None] * g * ey * inv_s2, g],
-                           axis=1)
-            hess = np.einsum("mpk,mqk->mpq", jac * weight[:, None, :], jac)
-            grad = np.einsum("mpk,mk->mp", jac * weight[:, None, :], resid)
-            good = np.linalg.det(hess) > 0
-            if not np.any(good):
-                return
-            step = np.zeros_like(grad)
-            step[good] = np.linalg.solve(hess[good], grad[good][..., None])[..., 0]
-            x = np.clip(x + step[:, 0], -self.max_shift, self.max_shift)
-            y = np.clip(y + step[:, 1], -self.max_shift, self.max_shift)
-        v["x0"][rows], v["y0"][rows] = x, y
-
-    def refine_multiplicative(self, n: int, fit: MultiplicativeFit, delivered_pad: np.ndarray,
-                              bg_pad: np.ndarray, level: np.ndarray,
+    def refine_multiplicative(self, n: int, fit: MultiplicativeFit, cand: np.ndarray,
+                              delivered_pad: np.ndarray, bg_pad: np.ndarray, level: np.ndarray,
                               merge_px: float) -> np.ndarray:
         """Re-centre the first ``n`` stars by ``fit``'s likelihood for speckle-like noise.
 
         The windowed centroid is made for additive noise; under noise
         proportional to the light (tracker.detect.multiplicative) the
-        brightest, noisiest pixels pull it. The fit reads the windows of
-        ``delivered_pad``, the frame before impulse rejection, padded like
-        the measured image, over the background ``bg_pad`` plus ``level``
-        (as ``measure`` took them). The peak of a faint speckled star can
-        sit a pixel or two from its centre, so a centre more than half a
-        pixel from its window's is fitted again in a window around it, and
-        centres up to ``radius - 1`` px from the candidate pixel are kept.
-        A fit that fails or lands farther keeps the windowed centre.
-        Updates ``x0``/``y0`` in place. Two candidates on one speckled star
-        end on one centre: returns the mask of stars whose centre is within
-        ``merge_px`` of an earlier (brighter) star's.
+        brightest, noisiest pixels pull it. The fit reads the windows around
+        ``cand[:n]`` in ``delivered_pad``, the frame before impulse
+        rejection, padded like the measured image, over the background
+        ``bg_pad`` plus ``level`` (as ``measure`` took them). The peak of a
+        faint speckled star can sit a pixel or two from its centre, so a
+        centre more than half a pixel from its window's is fitted again in a
+        window around it, and centres up to ``radius - 1`` px from the
+        candidate pixel are kept. A fit that fails or lands farther keeps
+        the windowed centre. Updates ``x0``/``y0`` in place. Two candidates
+        on one speckled star end on one centre: returns the mask of stars
+        whose centre is within ``merge_px`` of an earlier (brighter) star's.
         """
         if n == 0:
             return np.zeros(0, bool)
-        index = self.index[:n]
+        index = cand[:n, None] + self.offsets[None, :]
         x, y, ok = self._fit_windows(fit, index, delivered_pad, bg_pad, level[:n])
         far = np.flatnonzero(ok & ((np.abs(x) > 0.5) | (np.abs(y) > 0.5)))
         if len(far):
@@ -192,7 +206,7 @@ class WindowedCentroider:
         ok &= (np.abs(x) <= reach) & (np.abs(y) <= reach)
         self.v["x0"][:n][ok] = x[ok]
         self.v["y0"][:n][ok] = y[ok]
-        centre = index[:, len(self.offsets) // 2]
+        centre = cand[:n]
         return _later_within(centre % self.stride + self.v["x0"][:n],
                              centre // self.stride + self.v["y0"][:n], merge_px)
 
@@ -204,9 +218,9 @@ class WindowedCentroider:
         background = np.take(bg_pad.ravel(), index, mode="clip") + level[:, None]
         return fit.fit(delivered, background, (delivered - background).sum(axis=1))
 
-    def _weights(self, n: int, x0: np.ndarray, y0: np.ndarray) -> None:
+    def _weights(self, c: dict, x0: np.ndarray, y0: np.ndarray) -> None:
         """w = exp(-((dx - x0)^2 + (dy - y0)^2) / (2 w^2)); ws = w * s."""
-        ex, ey, w, t = self.ex[:n], self.ey[:n], self.w[:n], self.t[:n]
+        ex, ey, w, t = c["ex"], c["ey"], c["w"], c["t"]
         np.subtract(self.dx[None, :], x0[:, None], out=ex)
         np.subtract(self.dy[None, :], y0[:, None], out=ey)
         np.multiply(ex, ex, out=w)
@@ -214,7 +228,7 @@ class WindowedCentroider:
         np.add(w, t, out=w)
         np.multiply(w, -self.inv_two_w2, out=w)
         np.exp(w, out=w)
-        np.multiply(w, self.s[:n], out=self.ws[:n])
+        np.multiply(w, c["s"], out=c["ws"])
 
     def _axis_weights(self, pos: np.ndarray, e: np.ndarray, w: np.ndarray) -> None:
         """e = axis - pos and w = exp(-e^2 / (2 w^2)), (n, side)."""
@@ -223,12 +237,12 @@ class WindowedCentroider:
         np.multiply(w, -self.inv_two_w2, out=w)
         np.exp(w, out=w)
 
-    def _profiles(self, n: int, x0: np.ndarray, y0: np.ndarray, v: dict) -> None:
+    def _profiles(self, m: int, c: dict, x0: np.ndarray, y0: np.ndarray, v: dict) -> None:
         """sum_ws = sum(W S), sum_x = sum(W S ex), sum_y = sum(W S ey) for W centred on (x0, y0)."""
-        ex, wx, ey, wy, px, py = (a[:n] for a in self.axis_work)
+        ex, wx, ey, wy, px, py = c["axis"]
         self._axis_weights(x0, ex, wx)
         self._axis_weights(y0, ey, wy)
-        s = self.s[:n].reshape(n, self.side, self.side)  # (star, row = dy, column = dx)
+        s = c["s"].reshape(m, self.side, self.side)  # (star, row = dy, column = dx)
         np.einsum("nij,ni->nj", s, wy, out=px)  # column profile, weighted along y
         np.einsum("nij,nj->ni", s, wx, out=py)  # row profile, weighted along x
         np.multiply(px, wx, out=px)
@@ -248,30 +262,67 @@ class WindowedCentroider:
         np.subtract(step, pos, out=step)
         np.add(pos, step, out=pos)
 
-    def _photometry(self, n: int, v: dict, noise: np.ndarray) -> None:
-        s, w, ws, t = self.s[:n], self.w[:n], self.ws[:n], self.t[:n]
-        ex, ey = self.ex[:n], self.ey[:n]
+    def _photometry(self, m: int, c: dict, v: dict, noise: np.ndarray) -> None:
+        s, w, ws, t = c["s"], c["w"], c["ws"], c["t"]
+        ex, ey = c["ex"], c["ey"]
         np.sum(s, axis=1, out=v["flux"])
         np.sum(ws, axis=1, out=v["weighted"])
         np.einsum("ij,ij->i", w, w, out=v["sum_w2"])
         np.sqrt(v["sum_w2"], out=v["snr"])
-        np.multiply(v["snr"], noise[:n], out=v["snr"])
+        np.multiply(v["snr"], noise, out=v["snr"])
         np.divide(v["weighted"], v["snr"], out=v["snr"])
-        denom = np.maximum(v["weighted"], 1e-12)
-        np.multiply(ws, ex, out=t)
-        np.einsum("ij,ij->i", t, ex, out=v["mxx"])
-        np.einsum("ij,ij->i", t, ey, out=v["mxy"])
-        np.multiply(ws, ey, out=t)
-        np.einsum("ij,ij->i", t, ey, out=v["myy"])
-        for key in ("mxx", "myy", "mxy"):
-            np.divide(v[key], denom, out=v[key])
+        second_moments(ws, ex, ey, t, v["weighted"], v)
         np.add(v["mxx"], v["myy"], out=v["size"])
         e = np.hypot(v["mxx"] - v["myy"], 2.0 * v["mxy"])
         np.divide(e, np.maximum(v["size"], 1e-12), out=v["ellipticity"])
         np.max(s[:, self.centre], axis=1, out=v["peak"])
-        np.max(self.win[:n, self.centre], axis=1, out=v["raw_peak"])
-        np.greater(s, 3.0 * noise[:n, None], out=self.t[:n])
-        np.sum(self.t[:n], axis=1, out=v["npix"])
+        np.max(c["win"][:, self.centre], axis=1, out=v["raw_peak"])
+        np.greater(s, 3.0 * noise[:, None], out=t)
+        np.sum(t, axis=1, out=v["npix"])
+        self._roughness(m, c, v, noise)
+
+    def _roughness(self, m: int, c: dict, v: dict, noise: np.ndarray) -> None:
+        """rough = sum (Laplacian S)^2 / sum S^2 over the window, noise taken out.
+
+        The optics pass nothing finer than the PSF, so no image of the sky
+        (a star, a trail, a nebula) is rougher than a point source; a
+        cosmic-ray cluster or a hot-pixel pair, made on the sensor, is. The
+        4-neighbour Laplacian of white noise has 20 times its variance, which
+        is subtracted from the sum (and the noise's own from the denominator).
+        """
+        side = self.side
+        grid = c["s"].reshape(m, side, side)
+        lap = c["t"].reshape(m, side, side)[:, : side - 2, : side - 2]
+        np.multiply(grid[:, 1:-1, 1:-1], 4.0, out=lap)
+        lap -= grid[:, :-2, 1:-1]
+        lap -= grid[:, 2:, 1:-1]
+        lap -= grid[:, 1:-1, :-2]
+        lap -= grid[:, 1:-1, 2:]
+        np.multiply(lap, lap, out=lap)
+        inner = (side - 2) ** 2
+        var = np.square(noise)
+        rough = lap.sum(axis=(1, 2)) - 20.0 * inner * var
+        np.multiply(c["s"], c["s"], out=c["ex"])
+        energy = c["ex"].sum(axis=1) - side * side * var
+        np.divide(rough, np.maximum(energy, 1e-12), out=v["rough"])
+
+
+def second_moments(ws: np.ndarray, ex: np.ndarray, ey: np.ndarray, scratch: np.ndarray,
+                   total: np.ndarray, out: dict) -> None:
+    """out["mxx"], ["myy"], ["mxy"] = sum(ws e e') / total per row, e = ex or ey.
+
+    ``ws``: weighted signal (n, k); ``ex``, ``ey``: offsets from the centre
+    (n, k); ``scratch``: an (n, k) buffer; ``total`` (n,): the normaliser
+    (floored at 1e-12).
+    """
+    np.multiply(ws, ex, out=scratch)
+    np.einsum("ij,ij->i", scratch, ex, out=out["mxx"])
+    np.einsum("ij,ij->i", scratch, ey, out=out["mxy"])
+    np.multiply(ws, ey, out=scratch)
+    np.einsum("ij,ij->i", scratch, ey, out=out["myy"])
+    denom = np.maximum(total, 1e-12)
+    for key in ("mxx", "myy", "mxy"):
+        np.divide(out[key], denom, out=out[key])
 
 
 def _later_within(x: np.ndarray, y: np.ndarray, radius: float) -> np.ndarray:

@@ -33,8 +33,9 @@ from tracker.config import CameraConfig, SimConfig
 from tracker.sim import seednoise, sensor
 from tracker.sim.photometry import sky_electrons_per_pixel
 from tracker.sim.psf import Stamps, add_stamps, psf_stamps, stamp_pixels
+from tracker.sim.psf_shapes import PsfShape, shaped_stamps
 
-__all__ = ["SIM_STAR_DTYPE", "SimFrame", "render_points"]
+__all__ = ["SIM_STAR_DTYPE", "SimFrame", "render_points", "sim_psf", "star_stamps"]
 
 SIM_STAR_DTYPE = np.dtype([
     ("x", np.float64),        # column at the exposure mid-point, px
@@ -46,6 +47,8 @@ SIM_STAR_DTYPE = np.dtype([
     ("mf_snr", np.float64),   # expected matched-filter SNR
     ("in_frame", np.bool_),   # centre inside the image (else it only spills light in)
     ("saturated", np.bool_),  # its expected peak pixel reaches the full scale
+    ("bg_power", np.float64),  # noise power of its peak pixel without its own light (sensor
+                               # models: e-^2 of sky, dark, scene light, read, rounding)
 ])
 
 _HOT_PIXEL_SIGMAS = 5.0  # hot pixels listed as false sources: dark charge >= 5 read noise
@@ -61,6 +64,7 @@ class SimFrame:
     ``false_sources``: dicts {"kind": "hot_pixel"|"cosmic_ray", "x", "y", ...}.
     ``truth``: the JSON-ready dict written beside the image (tracker.sim.io).
     ``R``: attitude (v_cam = R @ v_icrs) or None for explicit sources.
+    ``labels``: what lit each pixel when a scene was rendered (tracker.sim.scene).
     """
 
     image: np.ndarray
@@ -70,6 +74,22 @@ class SimFrame:
     false_sources: list
     truth: dict
     R: np.ndarray | None = None
+    labels: np.ndarray | None = None   # tracker.sim.scene.LABELS per pixel, if a scene
+
+
+def sim_psf(sim_cfg: SimConfig, sigma_px: float | None = None) -> PsfShape:
+    """The PSF ``sim_cfg`` describes (``sigma_px`` overrides its sigma)."""
+    return PsfShape(sim_cfg.psf_shape,
+                    sim_cfg.psf_sigma_px if sigma_px is None else float(sigma_px),
+                    sim_cfg.psf_beta, sim_cfg.psf_ellipticity, np.radians(sim_cfg.psf_angle_deg))
+
+
+def star_stamps(xs, ys, psf: PsfShape) -> Stamps:
+    """Stamps of stars at xs, ys (N,) or along paths (N, M): exact erf integration for a
+    round Gaussian (tracker.sim.psf), supersampling for any other shape."""
+    if psf.is_round_gaussian:
+        return psf_stamps(xs, ys, psf.sigma_px)
+    return shaped_stamps(xs, ys, psf)
 
 
 def _noise_settings(sim_cfg: SimConfig, noise_model: str | None, snr_db: float | None):
@@ -124,7 +144,9 @@ def render_points(shape: tuple[int, int], xs, ys, electrons, sim_cfg: SimConfig,
                   rng: np.random.Generator, *, bit_depth: int = 10, mags=None, hips=None,
                   noise_model: str | None = None, snr_db: float | None = None,
                   psf_sigma_px: float | None = None, sky_e: float | None = None,
-                  pixel_size_um: float | None = None) -> SimFrame:
+                  pixel_size_um: float | None = None, psf: PsfShape | None = None,
+                  light_e: np.ndarray | None = None,
+                  deposits: tuple[np.ndarray, list] | None = None) -> SimFrame:
     """Render explicit point sources; returns a :class:`SimFrame` (``R`` None).
 
     ``xs``, ``ys``: positions in px, shape (N,), or paths (N, M) sampled
@@ -134,12 +156,19 @@ def render_points(shape: tuple[int, int], xs, ys, electrons, sim_cfg: SimConfig,
     ``noise_model``, ``snr_db``, ``psf_sigma_px`` override ``sim_cfg``.
     ``sky_e`` (e-/pixel) defaults to the sky of the default 16 mm camera;
     ``pixel_size_um`` (sensor area for cosmic rays) to the default camera's.
+    ``psf`` (tracker.sim.psf_shapes.PsfShape) overrides the configured PSF
+    and ``psf_sigma_px``. Sensor models only: ``light_e`` (e-/pixel, frame
+    shape) is further light under the stars (glare, lit terrain, a planet;
+    tracker.sim.scene), and ``deposits`` further charge after the shot noise
+    with its truth (particle tracks: (image in e-, list of dicts)).
     """
     height, width = int(shape[0]), int(shape[1])
     if height < 1 or width < 1:
         raise ValueError(f"image shape must be positive; got {shape}")
     model, target = _noise_settings(sim_cfg, noise_model, snr_db)
-    sigma = sim_cfg.psf_sigma_px if psf_sigma_px is None else float(psf_sigma_px)
+    if psf is None:
+        psf = sim_psf(sim_cfg, psf_sigma_px)
+    sigma = psf.sigma_px
     xs, ys = _as_paths(xs), _as_paths(ys)
     electrons = np.atleast_1d(np.asarray(electrons, dtype=np.float64))
     if len(electrons) != len(xs) or np.any(~(electrons >= 0)):
@@ -149,7 +178,7 @@ def render_points(shape: tuple[int, int], xs, ys, electrons, sim_cfg: SimConfig,
     if sky_e is None:
         sky_e = sky_electrons_per_pixel(default_cam.focal_length_mm, pixel_size_um, sim_cfg)
 
-    stamps = psf_stamps(xs, ys, sigma)
+    stamps = star_stamps(xs, ys, psf)
     signal = add_stamps((height, width), stamps, electrons)
     own = stamps.values * electrons[:, None, None]
     n = len(electrons)
@@ -163,22 +192,30 @@ def render_points(shape: tuple[int, int], xs, ys, electrons, sim_cfg: SimConfig,
                          & (stars["y"] >= -0.5) & (stars["y"] <= height - 0.5))
 
     if model in seednoise.SEED_MODELS:
-        image, info, power_of = _seed_frame(signal, model, target, sim_cfg, rng)
+        image, info, power_of, total = _seed_frame(signal, model, target, sim_cfg, rng)
         own = own / info["full_scale_e"]
+        # the part of each star's light that survives the clip at full scale
+        under, _ = _gather(total, stamps)
+        own = np.minimum(under, 1.0) - np.minimum(under - own, 1.0)
         depth = 8
     else:
         depth = bit_depth
         image, info, power_of, false_sources = _sensor_frame(
-            signal, model, sim_cfg, rng, depth, sky_e, pixel_size_um)
+            signal, model, sim_cfg, rng, depth, sky_e, pixel_size_um, light_e, deposits)
     values, inside = _gather(power_of, stamps)
     if model in seednoise.SEED_MODELS:
         power = np.maximum(values, seednoise.QUANT_POWER)
     else:
         power = values + (own if model == "realistic" else 0.0)
     stars["peak_snr"], stars["mf_snr"], peak = _star_snrs(own, power, inside)
+    if len(own):
+        at_peak = np.argmax(np.where(inside, own, -1.0).reshape(len(own), -1), axis=1)
+        stars["bg_power"] = values.reshape(len(own), -1)[np.arange(len(own)), at_peak]
     stars["saturated"] = peak >= info.pop("full_scale")
     truth = {
         "frame": None, "seed": sim_cfg.seed, "bit_depth": depth, "psf_sigma_px": sigma,
+        "psf": {"kind": psf.kind, "sigma_px": sigma, "beta": psf.beta,
+                "ellipticity": psf.ellipticity, "angle_deg": float(np.degrees(psf.angle_rad))},
         "exposure_ms": sim_cfg.exposure_ms, "noise_model": model,
         "snr_db": info.pop("snr_db"), "snr_db_target": target,
         "snr_db_definition": seednoise.SNR_DEFINITION, "noise": info,
@@ -204,36 +241,45 @@ def _star_record(row) -> dict:
 def _seed_frame(signal: np.ndarray, model: str, target: float | None, sim_cfg: SimConfig,
                 rng: np.random.Generator):
     """8-bit frame under a seed noise model; returns image, info, per-pixel noise power."""
-    full_scale_e = sensor.sensor_scale(sim_cfg, 8).gain_e_per_adu * 255.0
-    clean = np.minimum(signal / full_scale_e, 1.0)
-    height, width = clean.shape
+    # star light (e-) that fills the 0..1 scale
+    full_scale_e = sensor.sensor_scale(sim_cfg, 8).gain_e_per_adu * 255.0 / sim_cfg.seed_star_gain
+    stars = signal / full_scale_e
+    height, width = stars.shape
     glare = None
     centre = None
     if model == "glare":
         centre = (float(rng.uniform(0, width - 1)), float(rng.uniform(0, height - 1)))
-        glare = sensor.glare_field(clean.shape, centre, sim_cfg.glare_radius_px, 1.0)
-    param = (_seed_param(model, sim_cfg) if target is None
-             else seednoise.param_for_snr(model, clean, target, glare))
+        glare = sensor.glare_field(stars.shape, centre, sim_cfg.glare_radius_px, 1.0)
+    sky = sim_cfg.seed_sky
+    param = _seed_param(model, sim_cfg)
+    if target is not None and sim_cfg.snr_sets == "sky":
+        sky = seednoise.sky_for_snr(model, stars, param, target, glare)
+    clean = np.minimum(stars + sky, 1.0)
+    if target is not None and sim_cfg.snr_sets == "parameter":
+        param = seednoise.param_for_snr(model, clean, target, glare)
     noisy, info = seednoise.apply_seed_noise(clean, model, rng, param=param,
                                              glare_centre=centre,
                                              glare_radius_px=sim_cfg.glare_radius_px)
     image = np.rint(noisy * 255.0).astype(np.uint8)
     info["snr_db"] = seednoise.snr_db(clean, image / 255.0)
     info["full_scale_e"] = full_scale_e
-    info["full_scale"] = 1.0
+    info["sky"] = float(sky)
+    info["full_scale"] = (1.0 - sky) * (1.0 - 1e-9)   # a star that reaches it is clipped
     power = seednoise.noise_power(model, param, clean, glare)
-    return image, info, power
+    return image, info, power, stars + sky
 
 
 def _sensor_frame(signal: np.ndarray, model: str, sim_cfg: SimConfig,
                   rng: np.random.Generator, bit_depth: int, sky_e: float,
-                  pixel_size_um: float):
+                  pixel_size_um: float, light_e: np.ndarray | None = None,
+                  deposits: tuple[np.ndarray, list] | None = None):
     """Sensor-model frame; returns image, info, background noise power (e-^2), false sources."""
     scale = sensor.sensor_scale(sim_cfg, bit_depth)
     shape = signal.shape
     exposure_s = sim_cfg.exposure_ms / 1000.0
     quant = scale.gain_e_per_adu ** 2 / 12.0
     info = {"gain_e_per_adu": scale.gain_e_per_adu, "bias_adu": scale.bias_adu,
+            "full_well_e": sim_cfg.full_well_e,
             "full_scale": min(sim_cfg.full_well_e,
                               (scale.max_adu - scale.bias_adu) * scale.gain_e_per_adu)}
     if model == "none":
@@ -248,11 +294,16 @@ def _sensor_frame(signal: np.ndarray, model: str, sim_cfg: SimConfig,
         background += sensor.glare_field(shape, centre, sim_cfg.glare_radius_px,
                                          sim_cfg.glare_e)
         info["glare_centre"] = list(centre)
+    if light_e is not None:
+        background += light_e
     hot_flat, hot_dark = sensor.hot_pixels(shape, sim_cfg)
     background.ravel()[hot_flat] += hot_dark * exposure_s
     area_cm2 = shape[0] * shape[1] * (pixel_size_um * 1e-4) ** 2
     count = int(rng.poisson(sim_cfg.cosmic_ray_rate_cm2_s * area_cm2 * exposure_s))
     rays, ray_truth = sensor.cosmic_rays(shape, count, sim_cfg.cosmic_ray_e, rng)
+    if deposits is not None:
+        rays = rays + deposits[0]
+        ray_truth = ray_truth + list(deposits[1])
     charge = rng.poisson(signal + background).astype(np.float64) + rays
     image = sensor.digitise(charge, scale, sim_cfg.read_noise_e, sim_cfg.full_well_e, rng)
     electrons = (image.astype(np.float64) - scale.bias_adu) * scale.gain_e_per_adu

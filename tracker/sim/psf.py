@@ -20,7 +20,8 @@ import numpy as np
 
 from tracker.normal import pixel_fractions
 
-__all__ = ["Stamps", "psf_stamps", "add_stamps", "stamp_half_width", "stamp_pixels"]
+__all__ = ["Stamps", "psf_stamps", "add_stamps", "stamp_half_width", "stamp_pixels",
+           "stamp_box"]
 
 # Gaussian tails beyond this many sigma hold < 6e-7 of the light per axis.
 _TAIL_SIGMAS = 5.0
@@ -52,11 +53,13 @@ def _axis_weights(centres: np.ndarray, first: np.ndarray, size: int,
     return pixel_fractions(edges - centres[:, :, None], sigma)[0]
 
 
-def psf_stamps(xs: np.ndarray, ys: np.ndarray, sigma: float) -> Stamps:
-    """Stamps of N stars along paths xs, ys of shape (N,) or (N, M) (M sub-steps, px).
+def stamp_box(xs, ys, half: int):
+    """Star paths as (N, M) arrays and the box each star's stamp covers.
 
-    With M sub-steps the stamp is the mean over the path: a star that
-    moves during the exposure. ``sigma`` is the PSF sigma in pixels.
+    ``xs``, ``ys``: positions (N,) or paths (N, M), px; ``half``: pixels
+    either side of the path's pixels. Returns (xs, ys, x0, y0, kx, ky): the
+    paths, each box's first column and row, and the boxes' common width and
+    height. Raises ValueError for mismatched shapes or non-finite positions.
     """
     xs = np.atleast_1d(np.asarray(xs, dtype=np.float64))
     ys = np.atleast_1d(np.asarray(ys, dtype=np.float64))
@@ -67,16 +70,25 @@ def psf_stamps(xs: np.ndarray, ys: np.ndarray, sigma: float) -> Stamps:
                          f"{xs.shape} and {ys.shape}")
     if not (np.all(np.isfinite(xs)) and np.all(np.isfinite(ys))):
         raise ValueError("star positions must be finite")
-    if not sigma > 0:
-        raise ValueError(f"PSF sigma must be > 0 px; got {sigma}")
-    half = stamp_half_width(sigma)
     lo_x, lo_y = np.floor(xs.min(axis=1) + 0.5), np.floor(ys.min(axis=1) + 0.5)
     span_x = int((np.floor(xs.max(axis=1) + 0.5) - lo_x).max(initial=0))
     span_y = int((np.floor(ys.max(axis=1) + 0.5) - lo_y).max(initial=0))
     x0 = (lo_x - half).astype(np.int64)
     y0 = (lo_y - half).astype(np.int64)
-    wx = _axis_weights(xs, x0, span_x + 2 * half + 1, sigma)
-    wy = _axis_weights(ys, y0, span_y + 2 * half + 1, sigma)
+    return xs, ys, x0, y0, span_x + 2 * half + 1, span_y + 2 * half + 1
+
+
+def psf_stamps(xs: np.ndarray, ys: np.ndarray, sigma: float) -> Stamps:
+    """Stamps of N stars along paths xs, ys of shape (N,) or (N, M) (M sub-steps, px).
+
+    With M sub-steps the stamp is the mean over the path: a star that
+    moves during the exposure. ``sigma`` is the PSF sigma in pixels.
+    """
+    if not sigma > 0:
+        raise ValueError(f"PSF sigma must be > 0 px; got {sigma}")
+    xs, ys, x0, y0, kx, ky = stamp_box(xs, ys, stamp_half_width(sigma))
+    wx = _axis_weights(xs, x0, kx, sigma)
+    wy = _axis_weights(ys, y0, ky, sigma)
     values = np.einsum("nmy,nmx->nyx", wy, wx) / xs.shape[1]
     return Stamps(x0=x0, y0=y0, values=values)
 

@@ -1,4 +1,4 @@
-"""The seed method's four noise models, on images scaled 0..1 (SEED-METHOD.md).
+"""The seed method's four noise models, on images scaled 0..1 (docs/seed-method.md).
 
 * ``gaussian_poisson`` (parameter: variance, default 0.15): add N(0, var),
   clip to 0..1, then photon noise: Poisson(255 * value) / 255, clip.
@@ -28,7 +28,7 @@ from tracker.normal import erf
 from tracker.sim.sensor import glare_field
 
 __all__ = ["SEED_MODELS", "SNR_DEFINITION", "apply_seed_noise", "noise_power",
-           "param_for_snr", "snr_db"]
+           "param_for_snr", "sky_for_snr", "snr_db"]
 
 SEED_MODELS = ("gaussian_poisson", "salt_pepper", "speckle", "glare")
 SNR_DEFINITION = ("10*log10(sum(S^2)/sum((I-S)^2)) over the frame; S = noise-free star "
@@ -139,6 +139,43 @@ def param_for_snr(model: str, clean: np.ndarray, target_db: float,
         else:
             hi = mid
     return float(np.exp(0.5 * (lo + hi)))
+
+
+def sky_for_snr(model: str, stars: np.ndarray, param: float, target_db: float,
+                glare: np.ndarray | None = None) -> float:
+    """The sky level (0..1) under ``stars`` whose expected image SNR is ``target_db`` (dB).
+
+    The model keeps its parameter ``param``; the noise-free image is
+    min(stars + sky, 1), and the SNR counts the sky as signal (it is part
+    of the noise-free image). Bisection over the expected noise power of
+    every 4th pixel; raises ValueError if no sky level in 0..1 reaches the
+    target (speckle's SNR hardly depends on it: its noise scales with the
+    light).
+    """
+    _check_model(model)
+    s = np.asarray(stars, dtype=np.float64).ravel()[::4]
+    g = None if glare is None else np.asarray(glare).ravel()[::4]
+
+    def snr_at(sky: float) -> float:
+        clean = np.minimum(s + sky, 1.0)
+        power = float(np.mean(noise_power(model, param, clean, g)))
+        signal = float(np.mean(clean ** 2))
+        return 10.0 * np.log10(max(signal, 1e-300) / max(power, 1e-300))
+
+    lo, hi = 0.0, 1.0
+    low, high = snr_at(lo), snr_at(hi)
+    if not min(low, high) <= target_db <= max(low, high):
+        raise ValueError(f"image SNR {target_db:g} dB is out of reach for {model} at its "
+                         f"parameter {param:g}: the sky level spans {low:.2f} to "
+                         f"{high:.2f} dB")
+    rising = high >= low
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if (snr_at(mid) < target_db) == rising:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
 
 
 def apply_seed_noise(image01: np.ndarray, model: str, rng: np.random.Generator, *,

@@ -27,9 +27,10 @@ from tracker.astrometry.timescale import check_tai_ns, utc_iso_from_tai_ns
 from tracker.attitude import quat_from_matrix, radec_roll_from_matrix
 from tracker.camera import CameraModel
 from tracker.config import CameraConfig, SimConfig
-from tracker.sim.frame import SimFrame, render_points
+from tracker.sim.frame import SimFrame, render_points, sim_psf
 from tracker.sim.photometry import sky_electrons_per_pixel, star_electrons
-from tracker.sim.psf import stamp_half_width
+from tracker.sim.psf_shapes import PsfShape
+from tracker.sim.scene import Scene
 from tracker.sim.sequence import attitude_at
 
 __all__ = ["render_sky", "render_sequence"]
@@ -64,6 +65,7 @@ def render_sky(camera, catalogue, R: np.ndarray, sim_cfg: SimConfig,
                rng: np.random.Generator, *, t_s: float = 0.0, rate_deg_s=None,
                noise_model: str | None = None, snr_db: float | None = None,
                pixel_size_um: float | None = None, bit_depth: int | None = None,
+               psf: PsfShape | None = None, scene: Scene | None = None,
                t_tai_ns: int | None = None, observer_velocity_km_s=None) -> SimFrame:
     """Render the catalogue as seen at attitude ``R`` (v_cam = R @ v_icrs, mid-exposure).
 
@@ -74,6 +76,9 @@ def render_sky(camera, catalogue, R: np.ndarray, sim_cfg: SimConfig,
     ``epoch_year`` (tracker.catalogue.Catalogue). ``rate_deg_s``: body rate
     (x, y, z) in deg/s, or None for a still camera; ``t_s`` is recorded as
     the frame's time. Every star whose light reaches the frame is rendered.
+    ``psf`` overrides the configured PSF (tracker.sim.psf_shapes). ``scene``
+    (tracker.sim.scene, realistic sensor model) adds its light and particle
+    charge, and hides the stars whose centre it occludes.
     ``t_tai_ns`` (TAI ns since 1970, tracker.astrometry.timescale) turns on
     aberration, with ``observer_velocity_km_s`` (geocentric, ICRS, km/s;
     None = at rest at the Earth's centre); both go into the truth.
@@ -85,7 +90,8 @@ def render_sky(camera, catalogue, R: np.ndarray, sim_cfg: SimConfig,
     rate = _rate_rad_s(rate_deg_s)
     focal_mm = model.f_px * pitch_um / 1000.0
     exposure_s = sim_cfg.exposure_ms / 1000.0
-    half = stamp_half_width(sim_cfg.psf_sigma_px)
+    psf = sim_psf(sim_cfg) if psf is None else psf
+    half = psf.half_width
 
     vectors = np.asarray(catalogue.vectors, dtype=np.float64)
     if t_tai_ns is not None:
@@ -100,7 +106,7 @@ def render_sky(camera, catalogue, R: np.ndarray, sim_cfg: SimConfig,
              for e in ends]
     if len(ends) == 2:
         travel = np.nanmax(np.hypot(*(paths[1] - paths[0]).T), initial=0.0)
-        steps = int(min(_MAX_SMEAR_STEPS, np.ceil(travel / (0.5 * sim_cfg.psf_sigma_px)) + 1))
+        steps = int(min(_MAX_SMEAR_STEPS, np.ceil(travel / (0.5 * psf.sigma_px)) + 1))
         offsets = np.linspace(-0.5, 0.5, max(steps, 2)) * exposure_s
         paths = [model.vector_to_pixel(vectors[near] @ attitude_at(R, rate, dt).T)
                  for dt in offsets]
@@ -109,6 +115,13 @@ def render_sky(camera, catalogue, R: np.ndarray, sim_cfg: SimConfig,
     lo, hi = pix.min(axis=1), pix.max(axis=1)
     ok &= ((hi[:, 0] >= -0.5 - half) & (lo[:, 0] <= model.width - 0.5 + half)
            & (hi[:, 1] >= -0.5 - half) & (lo[:, 1] <= model.height - 0.5 + half))
+    if scene is not None:   # a star is hidden when its direction is behind the scene
+        mid = pix[:, pix.shape[1] // 2]
+        col = np.clip(np.rint(mid[:, 0]), 0, model.width - 1).astype(np.intp)
+        row = np.clip(np.rint(mid[:, 1]), 0, model.height - 1).astype(np.intp)
+        inside = ((mid[:, 0] >= -0.5) & (mid[:, 0] <= model.width - 0.5)
+                  & (mid[:, 1] >= -0.5) & (mid[:, 1] <= model.height - 0.5))
+        ok &= ~(inside & scene.occluded[row, col])
     keep = near[ok]
     pix = pix[ok]
     mags = np.asarray(catalogue.mag, dtype=np.float64)[keep]
@@ -116,7 +129,12 @@ def render_sky(camera, catalogue, R: np.ndarray, sim_cfg: SimConfig,
         (model.height, model.width), pix[..., 0], pix[..., 1],
         star_electrons(mags, focal_mm, sim_cfg), sim_cfg, rng, bit_depth=depth, mags=mags,
         hips=np.asarray(catalogue.hip)[keep], noise_model=noise_model, snr_db=snr_db,
-        sky_e=sky_electrons_per_pixel(focal_mm, pitch_um, sim_cfg), pixel_size_um=pitch_um)
+        sky_e=sky_electrons_per_pixel(focal_mm, pitch_um, sim_cfg), pixel_size_um=pitch_um,
+        psf=psf, light_e=None if scene is None else scene.light_e,
+        deposits=None if scene is None else (scene.deposits, scene.deposit_truth))
+    if scene is not None:
+        frame.labels = scene.labels
+        frame.truth["scene"] = scene.bodies
     if len(ends) == 2:  # truth positions at the mid-exposure attitude, not the path mean
         mid = model.vector_to_pixel(vectors[keep] @ R.T)
         frame.stars["x"], frame.stars["y"] = mid[:, 0], mid[:, 1]

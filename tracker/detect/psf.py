@@ -1,0 +1,374 @@
+"""The PSF measured from the frame: width and ellipticity from bright, isolated, unsaturated stars.
+
+Optics drift with focus and temperature, and a user rarely knows their
+PSF, so the detector measures it on every frame and uses it for the
+matched filter, the centroid window and the centroid fit;
+``detect.psf_sigma_px`` is only where it starts.
+
+Per frame (:class:`PsfMeter`):
+
+1. the brightest local maxima of the impulse-cleaned, unfiltered frame
+   (at most ``capacity``, each ``detect.psf_min_peak_sigma`` pixel noise
+   above the background; tracker.detect.peaks) are the candidates;
+2. adaptive second moments of each (Bernstein and Jarvis 2002): a
+   Gaussian weight of sigma w centred on the star, w^2 set to the weighted
+   Mxx + Myy and the centre moved until both settle. For a Gaussian spot of
+   covariance C and a round weight of sigma w the weighted moments are
+   M = (C^-1 + I / w^2)^-1, so C = (M^-1 - I / w^2)^-1 exactly; at the
+   fixed point w matches the spot, which makes C the best-fitting
+   (least-squares) elliptical Gaussian of any PSF. The pixel's own width
+   (1/12 px^2 per axis) is then taken off: C_optics = C - I / 12;
+3. a candidate is kept if it is unsaturated, away from the frame's edge,
+   isolated (the mean light in a ring at 3.5-4.5 w is under 2 % of its
+   peak, beyond three standard errors of that mean, so no neighbour, edge
+   of a bright body or glare slope pulls its moments) and round enough
+   (ellipticity < 0.5; cosmic-ray tracks are not);
+4. the frame's sigma is the mode of the kept stars' sigmas (the densest
+   10 %-wide bin of log sigma, then the median of the stars within 15 % of
+   it), so a minority of cosmic-ray blobs, double stars and bumps on bright
+   bodies does not move it; its ellipticity and angle are the median
+   tensor of those stars. Fewer than ``min_stars`` agreeing stars give no
+   measurement.
+
+Across frames (:class:`PsfTracker`): the estimate in use is a running
+mean of the measurements that agree with it (within 3 standard errors;
+at most ``memory`` frames' worth), so a steady PSF is known ever more
+precisely; a measurement that disagrees (focus moved, a new scene)
+replaces it at once. A frame with no measurement keeps the estimate once
+two frames have agreed on it; before that (one frame's measurement, which
+in a folder of frames from different cameras says nothing of the next)
+it is searched with the configured start.
+
+sigma here is the optics' Gaussian-equivalent sigma (pixel integration
+removed), the same quantity as ``detect.psf_sigma_px``; its FWHM is
+2 sqrt(2 ln 2) sigma.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from tracker.detect.windowed import second_moments
+
+__all__ = ["PsfEstimate", "PsfMeter", "PsfTracker", "SIGMA_MIN_PX", "SIGMA_MAX_PX",
+           "FWHM_PER_SIGMA", "pixel_tensor_to_optics", "combine_stars"]
+
+SIGMA_MIN_PX = 0.45     # narrower PSFs are undersampled beyond what the fit models
+SIGMA_MAX_PX = 3.5      # the largest windows the detector's buffers hold
+FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
+PIXEL_VARIANCE = 1.0 / 12.0
+_ITERATIONS = 3
+_SCOUTS = 12            # brightest stars that first say how wide the PSF is
+_SCOUT_ITERATIONS = 3
+_RING_MARGIN = 1.25     # windows reach this far beyond the ring of the typical star
+# The weight is never narrower than this: weighted moments of an undersampled spot
+# under a weight about one pixel wide rest on a single pixel and tell nothing; the
+# deconvolution C = (M^-1 - I / w^2)^-1 holds for any weight.
+_MIN_WEIGHT_PX = 0.8
+_RING = (3.5, 4.5)      # isolation ring, in units of the weight sigma
+_RING_FRACTION = 0.02
+_MAX_ELLIPTICITY = 0.5
+_BIN = math.log(1.10)
+_AGREE = math.log(1.15)
+
+
+@dataclass(frozen=True)
+class PsfEstimate:
+    """A PSF: optical sigma (px), ellipticity, angle of the long axis (rad), and its basis.
+
+    ``stars``: how many stars this frame's measurement came from (0: none,
+    the previous estimate or the configured value was used);
+    ``sigma_error_px``: standard error of ``sigma_px``.
+    """
+
+    sigma_px: float
+    ellipticity: float = 0.0
+    angle_rad: float = 0.0
+    stars: int = 0
+    sigma_error_px: float = math.inf
+
+    @property
+    def fwhm_px(self) -> float:
+        return FWHM_PER_SIGMA * self.sigma_px
+
+
+def pixel_tensor_to_optics(cxx, cyy, cxy):
+    """(sigma, ellipticity, angle) of covariances measured on pixels, pixel width removed.
+
+    Inputs are arrays (or scalars) of the pixel-integrated spot's covariance,
+    px^2; sigma^2 is the mean of the optical covariance's eigenvalues.
+    NaN where the optical covariance is not positive.
+    """
+    a = np.asarray(cxx, np.float64) - PIXEL_VARIANCE
+    b = np.asarray(cyy, np.float64) - PIXEL_VARIANCE
+    c = np.asarray(cxy, np.float64)
+    half_trace = 0.5 * (a + b)
+    spread = np.hypot(0.5 * (a - b), c)
+    ok = (half_trace > spread) & (half_trace > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sigma = np.where(ok, np.sqrt(np.where(ok, half_trace, 1.0)), np.nan)
+        ellipticity = np.where(ok, spread / np.where(ok, half_trace, 1.0), np.nan)
+    angle = 0.5 * np.arctan2(2.0 * c, a - b)
+    return sigma, ellipticity, angle
+
+
+class PsfMeter:
+    """Adaptive moments of up to ``capacity`` stars in windows of up to ``radius`` px.
+
+    Windows are read from padded buffers with rows of ``stride`` pixels
+    (tracker.detect.layout); every buffer is made here.
+    """
+
+    def __init__(self, stride: int, radius: int, capacity: int, min_stars: int) -> None:
+        self.stride = int(stride)
+        self.radius = int(radius)
+        self.capacity = int(capacity)
+        self.min_stars = int(min_stars)
+        self._windows: dict[int, tuple] = {}
+        k = (2 * self.radius + 1) ** 2
+        c = self.capacity
+        self._flat = {name: np.zeros(c * k, np.float64) for name in ("s", "ex", "ey", "w", "t")}
+        self._index = np.zeros(c * k, np.intp)
+        self._raw = np.zeros(c * k, np.uint16)
+        self._bgwin = np.zeros(c * k, np.float32)
+        self.last_cand, self.last_n, self.last_good = np.zeros(0, np.intp), 0, np.zeros(0, bool)
+        self.per_star = {name: np.zeros(c, np.float64) for name in (
+            "x", "y", "w2", "s0", "mxx", "myy", "mxy", "cxx", "cyy", "cxy", "ring", "peak",
+            "raw_peak")}
+
+    def _window(self, radius: int) -> tuple:
+        """(offsets, dx, dy, r) of a window of ``radius``, made once per radius."""
+        if radius not in self._windows:
+            dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+            dx, dy = dx.ravel().astype(np.float64), dy.ravel().astype(np.float64)
+            offsets = (dy * self.stride + dx).astype(np.intp)
+            self._windows[radius] = (offsets, dx, dy, np.hypot(dx, dy))
+        return self._windows[radius]
+
+    def measure(self, n: int, image_pad: np.ndarray, bg_pad: np.ndarray, cand: np.ndarray,
+                noise: np.ndarray, saturation: float, sigma_start: float,
+                edge_px: np.ndarray, min_stars: int | None = None) -> PsfEstimate | None:
+        """The PSF of the ``n`` candidates at padded flat indices ``cand`` (brightest first).
+
+        ``image_pad`` (uint16) and ``bg_pad`` (float32): the frame and its
+        background, padded alike; ``noise`` (n,): the pixel noise at each,
+        ADU; ``edge_px`` (n,): each one's distance to the frame's nearest
+        edge, px (a star whose isolation ring the edge cuts is not used).
+        Returns None when fewer than ``min_stars`` (default: the
+        constructor's) stars agree.
+
+        First the brightest few, in the largest windows, say roughly how
+        wide the PSF is, whatever ``sigma_start`` (px) was; then every
+        candidate is measured in windows just wide enough for the isolation
+        ring.
+        """
+        need = self.min_stars if min_stars is None else int(min_stars)
+        n = min(int(n), self.capacity)
+        self.last_n = 0
+        if n < need:
+            return None
+        p = {name: arr[:n] for name, arr in self.per_star.items()}
+        p["w2"].fill(max(sigma_start ** 2 + PIXEL_VARIANCE, _MIN_WEIGHT_PX ** 2))
+        first = min(n, _SCOUTS)
+        self._iterate(first, self.radius, image_pad, bg_pad, cand, p, _SCOUT_ITERATIONS)
+        w_typical = float(np.sqrt(np.median(p["w2"][:first])))
+        p["w2"].fill(w_typical ** 2)
+        radius = min(self.radius, int(math.ceil(_RING[1] * w_typical * _RING_MARGIN)) + 1)
+        view = self._iterate(n, radius, image_pad, bg_pad, cand, p, _ITERATIONS)
+        sigma, ellipticity, _ = pixel_tensor_to_optics(p["cxx"], p["cyy"], p["cxy"])
+        self.last_cand, self.last_n = cand, n
+        good = self._isolated(n, radius, view, p, noise[:n], saturation)
+        good &= edge_px[:n] >= _RING[1] * np.sqrt(p["w2"]) + 1.0
+        # a spot narrower than any PSF the detector handles is a particle's, not a star's
+        good &= ((ellipticity < _MAX_ELLIPTICITY) & (sigma >= SIGMA_MIN_PX)
+                 & (sigma <= SIGMA_MAX_PX))
+        self.last_good = good
+        return combine_stars(sigma[good], ellipticity[good], p["cxx"][good], p["cyy"][good],
+                             p["cxy"][good], need)
+
+    def last_stars(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The last :meth:`measure`'s usable stars: padded flat index, optical sigma (px),
+        ellipticity, and the centre offset (dx, dy) from that pixel, px (n, 2)."""
+        if self.last_n == 0:
+            empty = np.zeros(0)
+            return np.zeros(0, np.intp), empty, empty, np.zeros((0, 2))
+        n, good = self.last_n, self.last_good
+        p = {name: arr[:n] for name, arr in self.per_star.items()}
+        sigma, ellipticity, _ = pixel_tensor_to_optics(p["cxx"], p["cyy"], p["cxy"])
+        return (self.last_cand[:n][good].copy(), sigma[good], ellipticity[good],
+                np.column_stack([p["x"][good], p["y"][good]]))
+
+    def _views(self, n: int, k: int) -> dict:
+        out = {name: buf[: n * k].reshape(n, k) for name, buf in self._flat.items()}
+        out["index"] = self._index[: n * k].reshape(n, k)
+        out["raw"] = self._raw[: n * k].reshape(n, k)
+        out["bgwin"] = self._bgwin[: n * k].reshape(n, k)
+        return out
+
+    def _iterate(self, n: int, radius: int, image_pad, bg_pad, cand, p: dict,
+                 iterations: int) -> dict:
+        """Adaptive moments of the first ``n`` stars in windows of ``radius``; returns the
+        window views (their ``s`` holds the background-subtracted light)."""
+        offsets, dx, dy, _ = self._window(radius)
+        v = self._views(n, len(offsets))
+        np.add(cand[:n, None], offsets[None, :], out=v["index"])
+        np.take(image_pad.ravel(), v["index"], out=v["raw"], mode="clip")
+        np.take(bg_pad.ravel(), v["index"], out=v["bgwin"], mode="clip")
+        np.subtract(v["raw"], v["bgwin"], out=v["s"])
+        q = {name: arr[:n] for name, arr in p.items()}
+        q["x"].fill(0.0)
+        q["y"].fill(0.0)
+        for _ in range(iterations):
+            self._weighted(q, v, dx, dy)
+            # move to the weighted centroid (gain 2: exact when the weight matches the spot)
+            np.clip(q["x"] + 2.0 * q["mxx"], -1.5, 1.5, out=q["x"])  # mxx: sum(W S ex) / S0
+            np.clip(q["y"] + 2.0 * q["myy"], -1.5, 1.5, out=q["y"])
+            self._weighted(q, v, dx, dy, second=True)
+            _deconvolve_weight(q)
+            np.add(q["cxx"], q["cyy"], out=q["w2"])
+            np.multiply(q["w2"], 0.5, out=q["w2"])
+            np.nan_to_num(q["w2"], copy=False, nan=_MIN_WEIGHT_PX ** 2)
+            np.clip(q["w2"], _MIN_WEIGHT_PX ** 2, (1.2 * SIGMA_MAX_PX) ** 2, out=q["w2"])
+        self._weighted(q, v, dx, dy, second=True)
+        _deconvolve_weight(q)
+        return v
+
+    def _isolated(self, n: int, radius: int, v: dict, p: dict, noise: np.ndarray,
+                  saturation: float) -> np.ndarray:
+        """Unsaturated stars whose ring at 3.5-4.5 w holds < 2 % of their peak (beyond three
+        standard errors of its mean), inside the window."""
+        _, _, _, r = self._window(radius)
+        t, ring = v["t"], v["ex"]
+        w_now = np.sqrt(p["w2"])
+        np.divide(r[None, :], w_now[:, None], out=t)             # r / w
+        np.greater_equal(t, _RING[0], out=ring)
+        np.less_equal(t, _RING[1], out=v["ey"])
+        np.multiply(ring, v["ey"], out=ring)                     # 1 in the ring
+        np.sum(ring, axis=1, out=p["ring"])
+        np.multiply(ring, v["s"], out=ring)
+        ring_light = ring.sum(axis=1) / np.maximum(p["ring"], 1.0)
+        np.max(v["s"], axis=1, out=p["peak"])
+        np.max(v["raw"], axis=1, out=p["raw_peak"])
+        return ((_RING[1] * w_now <= radius) & (p["raw_peak"] < saturation)
+                & (ring_light < _RING_FRACTION * p["peak"]
+                   + 3.0 * noise / np.sqrt(np.maximum(p["ring"], 1.0))))
+
+    @staticmethod
+    def _weighted(p: dict, v: dict, dx: np.ndarray, dy: np.ndarray, second: bool = False):
+        """First (``second`` False) or second weighted moments about (x, y) into mxx, myy, mxy.
+
+        First moments are stored as mxx = sum(W S ex) / S0 and myy likewise.
+        """
+        ex, ey, w, t, s = v["ex"], v["ey"], v["w"], v["t"], v["s"]
+        np.subtract(dx[None, :], p["x"][:, None], out=ex)
+        np.subtract(dy[None, :], p["y"][:, None], out=ey)
+        np.multiply(ex, ex, out=w)
+        np.multiply(ey, ey, out=t)
+        np.add(w, t, out=w)
+        np.multiply(w, (-0.5 / p["w2"])[:, None], out=w)
+        np.exp(w, out=w)
+        np.multiply(w, s, out=w)                      # W S
+        np.sum(w, axis=1, out=p["s0"])
+        if not second:
+            s0 = np.maximum(p["s0"], 1e-12)
+            np.einsum("ij,ij->i", w, ex, out=p["mxx"])
+            np.einsum("ij,ij->i", w, ey, out=p["myy"])
+            p["mxx"] /= s0
+            p["myy"] /= s0
+            return
+        second_moments(w, ex, ey, t, p["s0"], p)
+
+
+def _deconvolve_weight(p: dict) -> None:
+    """cxx, cyy, cxy = (M^-1 - I / w^2)^-1: the spot's covariance from its weighted moments.
+
+    NaN where that is not a covariance (noise, or a spot broader than the
+    model allows).
+    """
+    mxx, myy, mxy = p["mxx"], p["myy"], p["mxy"]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        det_m = mxx * myy - mxy * mxy
+        inv_w2 = 1.0 / p["w2"]
+        a = myy / det_m - inv_w2
+        b = mxx / det_m - inv_w2
+        c = -mxy / det_m
+        det_c = a * b - c * c
+        bad = ~((det_m > 0) & (det_c > 0) & (a > 0))
+        np.divide(b, det_c, out=p["cxx"])
+        np.divide(a, det_c, out=p["cyy"])
+        np.divide(-c, det_c, out=p["cxy"])
+    for key in ("cxx", "cyy", "cxy"):
+        p[key][bad] = np.nan
+
+
+def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstimate | None:
+    """The mode of the stars' sigmas and the median tensor of the stars near it.
+
+    ``sigma``, ``ellipticity`` and the pixel covariances ``cxx``, ``cyy``,
+    ``cxy`` (px^2) of each star; None when fewer than ``min_stars`` agree.
+    """
+    if len(sigma) < min_stars:
+        return None
+    log_s = np.log(sigma)
+    # densest bin of width _BIN, sliding in steps of a quarter bin
+    starts = np.arange(log_s.min() - _BIN, log_s.max() + _BIN / 4, _BIN / 4)
+    counts = [(np.count_nonzero((log_s >= a) & (log_s < a + _BIN)), a) for a in starts]
+    best = max(counts)[1] + _BIN / 2
+    agree = np.abs(log_s - best) <= _AGREE
+    if np.count_nonzero(agree) < min_stars:
+        return None
+    sel = (np.median(cxx[agree]), np.median(cyy[agree]), np.median(cxy[agree]))
+    s_opt, e_opt, angle = pixel_tensor_to_optics(*sel)
+    m = int(np.count_nonzero(agree))
+    if not np.isfinite(s_opt):
+        return None
+    # standard error: from the agreeing stars' spread, or, if larger, from all the
+    # stars' robust spread (when the mode is picked among noisy values, the stars
+    # near it understate how far it can wander)
+    spread = max(float(np.std(sigma[agree])) / math.sqrt(m),
+                 1.4826 * float(np.median(np.abs(sigma - np.median(sigma))))
+                 / math.sqrt(len(sigma)), 0.01 * float(s_opt) / math.sqrt(m))
+    return PsfEstimate(float(np.clip(s_opt, SIGMA_MIN_PX, SIGMA_MAX_PX)), float(e_opt),
+                       float(angle), m, 1.25 * spread)
+
+
+class PsfTracker:
+    """The PSF estimate across frames, starting at ``sigma_px``; see the module docstring."""
+
+    def __init__(self, sigma_px: float, memory: int) -> None:
+        self.start = float(np.clip(sigma_px, SIGMA_MIN_PX, SIGMA_MAX_PX))
+        self.memory = max(1, int(memory))
+        self.reset()
+
+    def reset(self) -> None:
+        self.current = PsfEstimate(self.start)
+        self._weight = 0.0
+
+    def update(self, measured: PsfEstimate | None) -> PsfEstimate:
+        """Fold this frame's measurement in; returns the estimate for this frame."""
+        if measured is None:
+            if self._weight < 2.0:
+                # one frame's word: the next frame may be another camera's (a folder of
+                # frames replayed) as well as this one's; the configured start is the
+                # better guess until a second frame agrees
+                return PsfEstimate(self.start)
+            self.current = PsfEstimate(self.current.sigma_px, self.current.ellipticity,
+                                       self.current.angle_rad, 0, self.current.sigma_error_px)
+            return self.current
+        prior = self.current
+        se = math.hypot(measured.sigma_error_px,
+                        prior.sigma_error_px if math.isfinite(prior.sigma_error_px) else 0.0)
+        if self._weight == 0.0 or abs(measured.sigma_px - prior.sigma_px) > 3.0 * se:
+            self.current = measured
+            self._weight = 1.0
+            return measured
+        self._weight = min(self._weight + 1.0, float(self.memory))
+        f = 1.0 / self._weight
+        sigma = (1.0 - f) * prior.sigma_px + f * measured.sigma_px
+        ellipticity = (1.0 - f) * prior.ellipticity + f * measured.ellipticity
+        self.current = PsfEstimate(sigma, ellipticity, measured.angle_rad, measured.stars,
+                                   measured.sigma_error_px / math.sqrt(self._weight))
+        return self.current
