@@ -13,9 +13,9 @@ LAYOUTS = {
     0x001: (">IQfffffffffHBH", "frame_id t_ns q_w q_x q_y q_z sigma_cross_arcsec "
             "sigma_roll_arcsec rate_x rate_y rate_z matched mode flags"),
     0x002: (">IQBBHB", "frame_id t_ns part parts total count"),
-    0x003: (">IfIffBIIIIHIHIBB", "uptime_s frame_rate_hz exposure_us gain cpu_temp_c mode "
+    0x003: (">IfIffBIIIIHIHIBBf", "uptime_s frame_rate_hz exposure_us gain cpu_temp_c mode "
             "frames capture_faults solve_failures link_drops link_reopens rx_rejects "
-            "last_error config_crc time_source corrections"),
+            "last_error config_crc time_source corrections psf_fwhm_px"),
     0x010: (">HHBQ", "cmd_id cmd_seq code rx_t_ns"),
     0x011: (">HHBQ", "cmd_id cmd_seq code rx_t_ns"),
 }

@@ -201,3 +201,48 @@ def test_time_sync_and_set_velocity_reach_the_solver_and_the_fc_sees_tai(fc):
         svc.request_stop()
         runner.join(timeout=10)
     assert not runner.is_alive()
+
+
+def test_status_carries_the_psf_the_detector_measured(fc):
+    """Issue 12: STATUS psf_fwhm_px is the FWHM the real detector measures on the frames
+    (here rendered at sigma 1.7 px, FWHM 4.00 px), NaN before the first frame."""
+    from tracker.config import SimConfig
+    from tracker.pipeline import Pipeline as RealPipeline
+    from tracker.sim import render_points
+
+    master, port = fc
+    cfg = Config()
+    cfg = dataclasses.replace(
+        cfg, link=dataclasses.replace(cfg.link, port=port, status_rate_hz=20.0),
+        identify=dataclasses.replace(cfg.identify, enabled=False),
+        service=dataclasses.replace(cfg.service, watchdog_s=0.0))
+    sim = dataclasses.replace(SimConfig(), hot_pixel_fraction=0.0, cosmic_ray_rate_cm2_s=0.0)
+    rng = np.random.default_rng(5)
+    xs, ys = rng.uniform(20, 380, 40), rng.uniform(20, 380, 40)
+    image = render_points((400, 400), xs, ys, np.full(40, 4000.0), sim, rng,
+                          noise_model="realistic", psf_sigma_px=1.7).image
+
+    def frames():
+        i = 0
+        while True:
+            time.sleep(0.02)
+            yield Frame(i, f"f{i}", image, 10, time.monotonic_ns())
+            i += 1
+
+    svc = Daemon(cfg, source_factory=lambda: FakeSource(frames()), pipeline=RealPipeline(cfg),
+                 link=DaemonLink(cfg), notifier=Notifier(""))
+    assert np.isnan(svc._snapshot().psf_fwhm_px)
+    runner = threading.Thread(target=svc.run)
+    runner.start()
+    try:
+        decoder = StreamDecoder(Direction.TM)
+        got = read_packets(master, decoder, lambda ps: any(
+            p.id == MsgId.STATUS and np.isfinite(p.values["psf_fwhm_px"]) for p in ps),
+            timeout=30.0)
+        fwhm = [p.values["psf_fwhm_px"] for p in got
+                if p.id == MsgId.STATUS and np.isfinite(p.values["psf_fwhm_px"])]
+        assert fwhm and fwhm[-1] == pytest.approx(2.3548 * 1.7, rel=0.05)
+    finally:
+        svc.request_stop()
+        runner.join(timeout=10)
+    assert not runner.is_alive()

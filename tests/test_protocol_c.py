@@ -53,7 +53,7 @@ def _service_stream(seed=11):
                                     frames=k, capture_faults=0, solve_failures=2,
                                     link_drops=3, link_reopens=4, rx_rejects=5,
                                     last_error=6, config_crc=0xFFFFFFFF, time_source=k % 4,
-                                    corrections=k % 8))
+                                    corrections=k % 8, psf_fwhm_px=2.5 + k / 8))
             parts.append(enc.encode(MsgId.NACK, cmd_id=0x21, cmd_seq=16383, code=4,
                                     rx_t_ns=2**64 - 1))
     return b"".join(parts)

@@ -25,7 +25,7 @@ STATUS = {
     "uptime_s": 7, "frame_rate_hz": 29.5, "exposure_us": 20000, "gain": 2.0,
     "cpu_temp_c": 51.5, "mode": Mode.TRACKING, "frames": 210, "capture_faults": 1,
     "solve_failures": 2, "last_error": 0, "config_crc": 0xDEADBEEF, "time_source": 2,
-    "corrections": 1,
+    "corrections": 1, "psf_fwhm_px": 2.75,
 }
 
 

@@ -90,7 +90,7 @@ enum st_error_code {
 #define ST_ATTITUDE_SIZE 53u
 #define ST_CENTROIDS_SIZE 17u
 #define ST_CENTROIDS_ITEM_SIZE 18u
-#define ST_STATUS_SIZE 51u
+#define ST_STATUS_SIZE 55u
 #define ST_ACK_SIZE 13u
 #define ST_NACK_SIZE 13u
 #define ST_SET_MODE_SIZE 1u
@@ -197,6 +197,7 @@ typedef struct {
     uint32_t config_crc; /* -: checksum of the effective configuration */
     uint8_t time_source; /* -: TimeSource of the latest frame's absolute time (before the first frame: what one would get now) */
     uint8_t corrections; /* -: Correction bits the solver applies to the latest frame (before the first frame: what it would apply now) */
+    float psf_fwhm_px; /* px: the stars' full width at half maximum as the detector measures it, smoothed over frames (the focus); NaN until measured */
 } st_status_t;
 
 typedef struct {
@@ -297,7 +298,7 @@ static inline int st_parse_centroids(const uint8_t *p, size_t n, st_centroids_t 
 /* Payload -> struct. Returns ST_OK, ST_WRONG_LENGTH or ST_OUT_OF_RANGE. */
 static inline int st_parse_status(const uint8_t *p, size_t n, st_status_t *m)
 {
-    if (n != 51u) return ST_WRONG_LENGTH;
+    if (n != 55u) return ST_WRONG_LENGTH;
     m->uptime_s = st_get_u32(p + 0);
     m->frame_rate_hz = st_get_f32(p + 4);
     m->exposure_us = st_get_u32(p + 8);
@@ -314,6 +315,7 @@ static inline int st_parse_status(const uint8_t *p, size_t n, st_status_t *m)
     m->config_crc = st_get_u32(p + 45);
     m->time_source = st_get_u8(p + 49);
     m->corrections = st_get_u8(p + 50);
+    m->psf_fwhm_px = st_get_f32(p + 51);
     return ST_OK;
 }
 
@@ -540,6 +542,7 @@ static inline void st_print_status(FILE *f, const st_status_t *m)
     fprintf(f, " config_crc=%lu", (unsigned long)m->config_crc);
     fprintf(f, " time_source=%u", (unsigned)m->time_source);
     fprintf(f, " corrections=%u", (unsigned)m->corrections);
+    fprintf(f, " psf_fwhm_px=%.9g", (double)m->psf_fwhm_px);
 }
 
 static inline void st_print_ack(FILE *f, const st_ack_t *m)

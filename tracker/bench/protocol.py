@@ -38,7 +38,7 @@ STATUS_VALUES = {
     "uptime_s": 100, "frame_rate_hz": 30.0, "exposure_us": 20000, "gain": 2.0,
     "cpu_temp_c": 55.0, "mode": Mode.TRACKING, "frames": 3000, "capture_faults": 0,
     "solve_failures": 1, "link_drops": 0, "link_reopens": 0, "rx_rejects": 0, "last_error": 0,
-    "config_crc": 0x12345678, "time_source": 1, "corrections": 3,
+    "config_crc": 0x12345678, "time_source": 1, "corrections": 3, "psf_fwhm_px": 2.75,
 }
 
 

@@ -75,6 +75,7 @@ from tracker.daemon.modes import ModeMachine
 from tracker.daemon.notify import Notifier, Watchdog, watchdog_interval_s
 from tracker.daemon.status import StatusSnapshot
 from tracker.daemon.timebase import TimeBase
+from tracker.detect.psf import FWHM_PER_SIGMA
 from tracker.protocol.messages import ErrorCode, Mode
 
 __all__ = ["Daemon", "FrameReport", "EXIT_LINK_FAILED"]
@@ -143,6 +144,7 @@ class Daemon:
         self._sensor: tuple[float | None, float | None] = (None, None)   # exposure, gain
         self._observer: Observer | None = None      # the latest frame's
         self._temp_c = float("nan")
+        self._psf_fwhm_px = float("nan")           # the latest frame's that measured one
         self._logged: dict[ErrorCode, int] = {}
         self._next = {"stall": 0, "systemd_status": 0, "temperature": 0}
 
@@ -298,6 +300,8 @@ class Daemon:
         elif len(result.detections.stars):
             self.health.solve_failures += 1
         self.modes.solved(solved)
+        if result.detections.psf_sigma_px is not None:
+            self._psf_fwhm_px = result.detections.psf_sigma_px * FWHM_PER_SIGMA
         if self.exposure.update(result.detections, frame.bit_depth):
             self._apply_exposure()
         t_ctl = self.clock.now_ns()
@@ -371,7 +375,8 @@ class Daemon:
             cpu_temp_c=self._temp_c, mode=int(self.mode), frames=h.frames,
             capture_faults=h.capture_faults, solve_failures=h.solve_failures,
             last_error=int(h.last_error), config_crc=self._config_crc,
-            time_source=int(observer.time_source), corrections=int(observer.corrections))
+            time_source=int(observer.time_source), corrections=int(observer.corrections),
+            psf_fwhm_px=self._psf_fwhm_px)
 
     def _mirror_link(self) -> None:
         counts = self.link.counts()

@@ -340,6 +340,8 @@ MESSAGES: tuple[MessageDef, ...] = (
            "(before the first frame: what one would get now)"),
         _f("corrections", "u8", "", "Correction bits the solver applies to the latest frame "
            "(before the first frame: what it would apply now)"),
+        _f("psf_fwhm_px", "f32", "px", "the stars' full width at half maximum as the detector "
+           "measures it, smoothed over frames (the focus); NaN until measured"),
     ), priority=3),
     MessageDef(MsgId.ACK, _TM, "command accepted", _REPLY, priority=1),
     MessageDef(MsgId.NACK, _TM, "command refused; nothing changed", _REPLY, priority=1),
