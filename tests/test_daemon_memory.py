@@ -53,8 +53,8 @@ def test_the_whole_loop_keeps_nothing_per_frame(tmp_path):
 
     def drain():
         while not stop.is_set():
-            try:
-                os.read(fc.master, 65536)
+            try:           # small reads: a 64 KiB buffer in flight would count as held
+                os.read(fc.master, 1024)
             except (BlockingIOError, OSError):
                 time.sleep(0.002)
 
