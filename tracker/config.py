@@ -237,6 +237,11 @@ class DetectConfig:
     threads: int = knob(2, "default: threads sharing the full-frame median and Gaussian "
                         "filters, in horizontal slabs (1 = the calling thread alone; the Pi 5 "
                         "has 4 cores)", "threads", min=1, max=16)
+    opencv_threads: int = knob(1, "threads OpenCV's own parallel loops may use inside each "
+                               "call (cv2.setNumThreads, for the whole process): 1 = none, "
+                               "the slabs above being the detector's parallelism (a pool "
+                               "under each slab competes with them for the cores); 0 = "
+                               "OpenCV's default (every core)", "threads", min=0, max=16)
 
 
 @dataclass(frozen=True)
@@ -411,6 +416,11 @@ class ServiceConfig:
                             max=100000)
     start_state: str = knob("lost_in_space", "mode at start; standby waits for the flight "
                             "computer's SET_MODE", choices=("standby", "lost_in_space"))
+    capture_ahead: str = knob("live", "capture the next frame in a thread of its own while "
+                              "this one is processed: live (cameras; the newest frame is "
+                              "processed next, one left waiting is superseded), always "
+                              "(replay too, nothing superseded), never (one thread: capture, "
+                              "then process)", choices=("live", "always", "never"))
 
 
 @dataclass(frozen=True)
