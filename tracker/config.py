@@ -305,6 +305,28 @@ class IdentifyConfig:
                                 "from their prediction", "px", min=0.1, max=1000.0)
     track_max_gap_s: float = knob(2.0, "tracking: predict only from a solution this recent",
                                   "s", min=0.0, max=3600.0)
+    track_windows: bool = knob(True, "tracking with a known rate detects only in windows "
+                               "around the predicted stars, plus a slice of the frame; "
+                               "false: the whole frame every frame")
+    track_window_stars: int = knob(40, "tracking: brightest predicted catalogue stars "
+                                   "given a window", "stars", min=4, max=1024)
+    track_window_unknown: int = knob(4, "tracking: unidentified stars of the last frame "
+                                     "(brightest) followed in windows too", "stars", min=0,
+                                     max=256)
+    track_sweep_windows: int = knob(4, "tracking: fewest windows a frame that sweep the "
+                                    "whole frame in turn (new stars, surprises); windows "
+                                    "not needed by stars sweep too", "windows", min=0,
+                                    max=1024)
+    track_window_sigma: float = knob(3.0, "tracking: window half-width in radial sigmas of "
+                                     "the predicted position (plus half the exposure's "
+                                     "smear and the PSF's reach)", "sigma", min=1.0,
+                                     max=20.0)
+    track_accel_deg_s2: float = knob(2.0, "tracking: angular acceleration (1 sigma per axis) "
+                                     "the prediction allows between frames", "deg/s^2",
+                                     min=0.0, max=1000.0)
+    track_window_max_px: int = knob(96, "tracking: largest window; a prediction needing "
+                                    "more is searched in the whole frame", "px", min=16,
+                                    max=1024)
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ import numpy as np
 
 from tracker.detect.multiplicative import MultiplicativeFit
 
-__all__ = ["WindowedCentroider"]
+__all__ = ["WindowedCentroider", "later_within"]
 
 
 class WindowedCentroider:
@@ -193,7 +193,7 @@ class WindowedCentroider:
         self.v["x0"][:n][ok] = x[ok]
         self.v["y0"][:n][ok] = y[ok]
         centre = index[:, len(self.offsets) // 2]
-        return _later_within(centre % self.stride + self.v["x0"][:n],
+        return later_within(centre % self.stride + self.v["x0"][:n],
                              centre // self.stride + self.v["y0"][:n], merge_px)
 
     @staticmethod
@@ -274,7 +274,7 @@ class WindowedCentroider:
         np.sum(self.t[:n], axis=1, out=v["npix"])
 
 
-def _later_within(x: np.ndarray, y: np.ndarray, radius: float) -> np.ndarray:
+def later_within(x: np.ndarray, y: np.ndarray, radius: float) -> np.ndarray:
     """Mask of points within ``radius`` of an earlier point in the arrays' order.
 
     Sorted by x, each point is compared only with those within ``radius`` in x.

@@ -78,6 +78,7 @@ from tracker.detect.result import StarFlag
 from tracker.identify.database import BoundDatabase
 from tracker.identify.lens import LensFilter, LensPrior, LensState, fit_frame
 from tracker.identify.lost import Hypothesis, PatternSearch, WorkBudget
+from tracker.identify.predict import TrackPrediction, predict_positions
 from tracker.identify.verify import Projector, false_match_probability, match_nearest
 from tracker.timing import StageTimer
 
@@ -86,6 +87,7 @@ __all__ = ["Solution", "Solver", "LensReport"]
 _ARCSEC = math.degrees(1.0) * 3600.0
 _PRIOR_DOF = 3.0
 _FIRST_PASS_PX = 3.0
+_CONE_REUSE_RAD = math.radians(0.5)   # tracking's catalogue cone: 0.5 deg wider, reused
 
 
 @dataclass(frozen=True)
@@ -121,7 +123,8 @@ class Solution:
     ``hip`` has one entry per input star (0 = unidentified). ``rate_rad_s`` is
     the body angular velocity in the camera frame from the last two solutions
     (None if unknown, or if they are further apart than ``track_max_gap_s``:
-    a rate averaged over a long gap is not a rate). ``prob_false`` is the
+    a rate averaged over a long gap is not a rate); ``sigma_rate_rad_s`` its
+    1-sigma per axis, from the two attitudes' covariances. ``prob_false`` is the
     model probability that the accepted match is wrong (tracker.identify.verify).
     ``focal_length_mm`` and ``sigma_focal_length_mm`` are this frame's own
     estimate (NaN without a solution, or when the pixel size is unknown);
@@ -143,6 +146,7 @@ class Solution:
     sigma_roll_arcsec: float = math.nan
     residual_arcsec: float = math.nan
     rate_rad_s: np.ndarray | None = None
+    sigma_rate_rad_s: np.ndarray | None = None
     prob_false: float = 1.0
     focal_length_mm: float = math.nan
     sigma_focal_length_mm: float = math.nan
@@ -232,7 +236,7 @@ class Solver:
         self._cat_mag = np.asarray(catalogue.mag, dtype=np.float64)
         self._search = PatternSearch(bound, cfg.pattern_tolerance_px, cfg.min_separation_px)
         self._db_proj = Projector(bound.vectors)
-        self._cat_proj = Projector(self._cat_vectors)
+        self._cat_proj = Projector(self._cat_vectors, reuse_cone_rad=_CONE_REUSE_RAD)
         self._area = float(camera.width * camera.height)
         self._timer = StageTimer()
         self._prior = lens_prior(cfg, camera)
@@ -251,6 +255,9 @@ class Solver:
         self._last_R: np.ndarray | None = None
         self._last_t: int | None = None
         self._rate: np.ndarray | None = None   # rotation vector rate of R, rad/s
+        self._rate_P: np.ndarray | None = None   # its covariance, (rad/s)^2
+        self._last_P: np.ndarray | None = None   # the last attitude's covariance, rad^2
+        self._unknown = np.zeros((0, 3))   # directions of unidentified stars followed
         self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
         self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
 
@@ -289,10 +296,16 @@ class Solver:
 
     # -- public --------------------------------------------------------------
 
-    def solve(self, stars, t_ns: int, observer=None) -> Solution:
+    def solve(self, stars, t_ns: int, observer=None, search_area_px: float | None = None
+              ) -> Solution:
         """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module.
 
         ``observer``: the frame's tracker.astrometry.observer.Observer (None: unknown).
+        ``search_area_px``: the stars come from windows of this total area
+        around this solver's :meth:`prediction` (tracker.identify.windows):
+        only tracking is tried, its false-match odds taken over that area,
+        and a frame that does not verify fails with ``not_verified`` and
+        keeps the state (the caller searches the whole frame next).
         """
         timer = self._timer
         timer.reset()
@@ -312,9 +325,12 @@ class Solver:
             R = self._track(xy, lens_cam, t_ns)
             if R is not None:
                 timer.start("refine")
-                sol = self._finish(R, None, xy, flux, idx, hip, t_ns, "tracking", None, None)
+                sol = self._finish(R, None, xy, flux, idx, hip, t_ns, "tracking", None, None,
+                                   search_area_px or self._area)
                 if sol is not None:
                     return sol
+        if search_area_px is not None:
+            return self._fail("not_verified", hip)
         timer.start("lost_in_space")
         budget = WorkBudget(self.cfg.max_patterns, self.cfg.max_hypotheses)
         f_low, f_high = self._focal_range(self.cfg.focal_tolerance)
@@ -356,6 +372,38 @@ class Solver:
         return (f"focal_length: the stars fit a focal length of {mm} mm ({pct:+.1f} %), "
                 f"outside camera.focal_length_mm {cfg_f * self._mm_per_px:.4g} {tol}; set "
                 f"camera.focal_length_mm: {mm}, or run `tracker calibrate`")
+
+    def prediction(self, t_ns: int, exposure_s: float, observer=None) -> TrackPrediction | None:
+        """The stars tracking follows into a frame at ``t_ns``, or None without a rate.
+
+        The ``identify.track_window_stars`` brightest catalogue stars predicted
+        in the image, then the ``track_window_unknown`` brightest unidentified
+        stars of the last frame, each with its uncertainty and its smear over
+        ``exposure_s`` (tracker.identify.predict). Needs a recent solution and
+        a rate (the first frame after a lock has none: its stars are searched
+        in the whole frame).
+        """
+        if not self._can_track(t_ns) or self._rate is None or self._last_P is None:
+            return None
+        cfg = self.cfg
+        dt = (t_ns - self._last_t) / 1e9
+        R = self._predicted(t_ns)
+        camera = self.lens_camera()
+        beta = None if observer is None else observer.beta()
+        cat_idx, _ = self._cat_proj.predict(R, camera, beta=beta)
+        cat_idx = cat_idx[np.argsort(self._cat_mag[cat_idx], kind="stable")]
+        cat_idx = cat_idx[:cfg.track_window_stars]
+        ref = self._cat_vectors[cat_idx]
+        if beta is not None:
+            ref = aberrate(ref, beta)
+        vectors = np.concatenate((ref, self._unknown[:cfg.track_window_unknown]))
+        accel = math.radians(cfg.track_accel_deg_s2) * 0.5 * dt * dt
+        P = self._last_P + self._rate_P * dt * dt + np.eye(3) * accel * accel
+        xy, sigma, smear = predict_positions(camera, R, vectors, P, -self._rate, exposure_s)
+        inside = camera.in_frame(xy)
+        catalogue = np.concatenate((cat_idx, np.full(len(vectors) - len(cat_idx), -1)))
+        return TrackPrediction(R=R, xy=xy[inside], sigma_px=sigma[inside],
+                               smear_px=smear[inside], catalogue=catalogue[inside], dt_s=dt)
 
     def _can_track(self, t_ns: int) -> bool:
         if self._last_R is None or self._last_t is None:
@@ -465,13 +513,14 @@ class Solver:
         self._photometric_check(ok, which, cat_idx, flux)
         return ok, which, cat_idx, pred
 
-    def _finish(self, R, prob, xy, flux, idx, hip, t_ns, mode, budget, f_px
-                ) -> Solution | None:
+    def _finish(self, R, prob, xy, flux, idx, hip, t_ns, mode, budget, f_px,
+                area_px: float | None = None) -> Solution | None:
         """Refine against the catalogue, fit the lens, update the state (module docstring).
 
-        ``prob`` None (tracking) means: verify here, with the refined matches;
-        returns None if they do not verify. ``f_px``: the focal length lost in
-        space found with ``R`` (None: the filtered lens's).
+        ``prob`` None (tracking) means: verify here, with the refined matches
+        (the stars found in ``area_px``); returns None if they do not verify.
+        ``f_px``: the focal length lost in space found with ``R`` (None: the
+        filtered lens's).
         """
         cfg = self.cfg
         camera = self.lens_camera()
@@ -492,7 +541,7 @@ class Solver:
         ok, which, cat_idx, pred = self._match_catalogue(R, camera, xy, flux, radius)
         n = int(np.count_nonzero(ok))
         if prob is None:
-            prob = false_match_probability(n, len(xy), len(pred), radius, self._area, 1)
+            prob = false_match_probability(n, len(xy), len(pred), radius, area_px, 1)
             if n < cfg.min_matched or prob >= cfg.max_prob_false:
                 return None
         if n < 4:
@@ -512,16 +561,25 @@ class Solver:
         P = attitude_covariance(obs, sigma)
         hip[idx[ok]] = self._cat_hip[cat_idx[which[ok]]]
         ra, dec, roll = radec_roll_from_matrix(_centre_rotation(lens_cam) @ R)
-        rate = None
+        rate = rate_sigma = None
         if self._last_R is not None and self._last_t is not None and \
                 0 < t_ns - self._last_t <= self.cfg.track_max_gap_s * 1e9:
-            new_rate = rotation_vector(R @ self._last_R.T) / ((t_ns - self._last_t) / 1e9)
+            dt = (t_ns - self._last_t) / 1e9
+            new_rate = rotation_vector(R @ self._last_R.T) / dt
+            new_P = (P + self._last_P) / (dt * dt)
             # average with the previous estimate: halves the noise of a steady rate
-            self._rate = new_rate if self._rate is None else 0.5 * (self._rate + new_rate)
+            if self._rate is None:
+                self._rate, self._rate_P = new_rate, new_P
+            else:
+                self._rate = 0.5 * (self._rate + new_rate)
+                self._rate_P = 0.25 * (self._rate_P + new_P)
             rate = -self._rate
+            rate_sigma = np.sqrt(np.diag(self._rate_P))
         else:
-            self._rate = None
-        self._last_R, self._last_t = R, t_ns
+            self._rate = self._rate_P = None
+        self._last_R, self._last_t, self._last_P = R, t_ns, P
+        unmatched = np.flatnonzero(~ok)[:self.cfg.track_window_unknown]
+        self._unknown = lens_cam.pixel_to_vector(xy[unmatched]) @ R
         self._timer.stop()
         return Solution(
             ok=True, reason=None, hip=hip, mode=mode, R=R, q=quat_from_matrix(R),
@@ -529,6 +587,7 @@ class Solver:
             matched=n, sigma_cross_arcsec=math.sqrt(P[0, 0] + P[1, 1]) * _ARCSEC,
             sigma_roll_arcsec=math.sqrt(P[2, 2]) * _ARCSEC,
             residual_arcsec=math.sqrt(resid2 / n) * _ARCSEC, rate_rad_s=rate,
+            sigma_rate_rad_s=rate_sigma,
             prob_false=prob, focal_length_mm=frame.camera.f_px * self._mm_per_px,
             sigma_focal_length_mm=math.sqrt(frame.cov[0, 0]) * self._mm_per_px,
             lens=self._lens_report(state),
