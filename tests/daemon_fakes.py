@@ -142,7 +142,7 @@ class FakePipeline:
     def reset(self):
         self.resets += 1
 
-    def process(self, image, bit_depth, t_ns, observer=None):
+    def process(self, image, bit_depth, t_ns, observer=None, exposure_s=None):
         self.seen.append(t_ns)
         self.observer = observer
         tag = self.tags.get(t_ns, SOLVED)

@@ -68,7 +68,7 @@ from tracker.commands.run import build_daemon
 from tracker.config import Config
 
 class Stall:
-    def process(self, image, bit_depth, t_ns, observer):
+    def process(self, image, bit_depth, t_ns, observer, exposure_s=None):
         time.sleep(120)
 
 cfg = Config()

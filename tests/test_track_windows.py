@@ -109,9 +109,10 @@ def test_windows_hold_their_stars_and_grow_with_uncertainty_and_smear():
                             max_cell_px=96)
     xy = [[800.2, 650.7], [3.0, 4.0], [1598.0, 1200.0], [400.0, 1299.0]]
     plan = planner.plan(_prediction(xy))
-    assert plan.cell == 48 and plan.stars == 4 and len(plan.origins) == 12
+    assert plan.cell == 24 and plan.stars == 4 and len(plan.origins) == 12
     for (x, y), (x0, y0) in zip(xy, plan.origins[:4], strict=True):
         assert x0 <= x <= x0 + plan.cell - 1 and y0 <= y <= y0 + plan.cell - 1
+    assert planner.plan(_prediction(xy, sigma=3.0)).cell == 48          # 2 (3 x 3 + 4) + 1
     assert planner.plan(_prediction(xy, sigma=8.0)).cell == 72          # 2 (3 x 8 + 4) + 1
     assert planner.plan(_prediction(xy, smear=(60.0, 0.0))).cell == 72  # 2 (30 + 0.9 + 4) + 1
     assert planner.plan(_prediction(xy, sigma=20.0)) is None            # beyond 96 px
@@ -121,10 +122,12 @@ def test_the_sweep_covers_the_whole_frame_in_turn():
     planner = WindowPlanner(480, 288, capacity=6, sweep=2, sigmas=3.0, reach_px=4,
                             max_cell_px=96)
     seen = np.zeros((288, 480), bool)
-    for _ in range(12):          # 60 tiles of 48 px, 5 a frame
+    for frame in range(48):          # 240 windows of 24 px, 5 a frame
+        assert not seen.all()
         plan = planner.plan(_prediction([[100.0, 100.0]]))
+        assert plan.cell == 24
         for x0, y0 in plan.origins[plan.stars:]:
-            seen[y0:y0 + 48, x0:x0 + 48] = True
+            seen[y0:y0 + 24, x0:x0 + 24] = True
     assert seen.all()
 
 

@@ -308,7 +308,7 @@ class IdentifyConfig:
     track_windows: bool = knob(True, "tracking with a known rate detects only in windows "
                                "around the predicted stars, plus a slice of the frame; "
                                "false: the whole frame every frame")
-    track_window_stars: int = knob(40, "tracking: brightest predicted catalogue stars "
+    track_window_stars: int = knob(64, "tracking: brightest predicted catalogue stars "
                                    "given a window", "stars", min=4, max=1024)
     track_window_unknown: int = knob(4, "tracking: unidentified stars of the last frame "
                                      "(brightest) followed in windows too", "stars", min=0,

@@ -13,4 +13,5 @@ BENCHES = {
     "solve": "tracker.bench.solve",
     "soak": "tracker.bench.soak",
     "aberration": "tracker.bench.aberration",
+    "track": "tracker.bench.track",
 }

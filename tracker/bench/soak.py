@@ -138,11 +138,11 @@ class _FlakyPipeline:
     def reset(self):
         self.inner.reset()
 
-    def process(self, image, bit_depth, t_ns, observer=None):
+    def process(self, image, bit_depth, t_ns, observer=None, exposure_s=None):
         if self.inj.due(self.inj.args.stage_every):
             self.inj.n["stage_raise"] += 1
             raise RuntimeError("injected: stage failure")
-        return self.inner.process(image, bit_depth, t_ns, observer)
+        return self.inner.process(image, bit_depth, t_ns, observer, exposure_s)
 
 
 class _FlightComputer(threading.Thread):

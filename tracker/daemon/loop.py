@@ -124,8 +124,8 @@ class Daemon:
     """The loop of the module docstring, with every stage injected.
 
     ``source_factory()`` returns a new FrameSource (called again after the
-    source fails); ``pipeline.process(image, bit_depth, t_ns, observer)``
-    returns a :class:`~tracker.pipeline.FrameResult` and ``pipeline.reset()``
+    source fails); ``pipeline.process(image, bit_depth, t_ns, observer,
+    exposure_s)`` returns a :class:`~tracker.pipeline.FrameResult` and ``pipeline.reset()``
     forgets the tracking lock; ``link`` is a
     :class:`~tracker.daemon.link.DaemonLink` or anything with its methods.
     ``clock`` (tests: a virtual one) times every wait; ``timebase`` (tests)
@@ -333,7 +333,9 @@ class Daemon:
     def _solve(self, frame: Frame, observer: Observer, t_avail: int, capture_ms: float,
                t_ref: int) -> None:
         try:
-            result = self.pipeline.process(frame.image, frame.bit_depth, frame.t_ns, observer)
+            exposure_s = None if frame.exposure_us is None else frame.exposure_us / 1e6
+            result = self.pipeline.process(frame.image, frame.bit_depth, frame.t_ns, observer,
+                                           exposure_s)
         except Exception as exc:    # a stage that raises loses this frame only
             self._fault(ErrorCode.STAGE_ERROR, f"{frame.name}: {type(exc).__name__}: {exc}",
                         exc)

@@ -10,7 +10,7 @@ drops stars at a window's inner border). All windows of a frame share one
 side, the largest h of its stars rounded up to a multiple of ``STEP_PX``
 (at least ``MIN_CELL_PX``), so that one detector serves the frame; a frame
 needing more than ``identify.track_window_max_px`` is searched whole. Sides
-are multiples of three tiles of at least 16 px: the window detector takes
+are three background tiles of at least 8 px: the window detector takes
 each window's background from its own 3 x 3 tiles (tracker.pipeline).
 
 Every frame gets the same number of windows, ``capacity`` = stars followed
@@ -32,8 +32,8 @@ from tracker.identify.predict import TrackPrediction
 
 __all__ = ["WindowPlan", "WindowPlanner", "STEP_PX", "MIN_CELL_PX"]
 
-STEP_PX = 24      # window sides are multiples of this: few sizes, few detectors
-MIN_CELL_PX = 48  # 3 x 3 background tiles of 16 px at least
+STEP_PX = 24      # window sides are multiples of this (3 tiles): few sizes, few detectors
+MIN_CELL_PX = 24  # 3 x 3 background tiles of 8 px at least
 
 
 @dataclass(frozen=True)
