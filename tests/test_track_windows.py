@@ -122,7 +122,7 @@ def test_the_sweep_covers_the_whole_frame_in_turn():
     planner = WindowPlanner(480, 288, capacity=6, sweep=2, sigmas=3.0, reach_px=4,
                             max_cell_px=96)
     seen = np.zeros((288, 480), bool)
-    for frame in range(48):          # 240 windows of 24 px, 5 a frame
+    for _ in range(48):          # 240 windows of 24 px, 5 a frame
         assert not seen.all()
         plan = planner.plan(_prediction([[100.0, 100.0]]))
         assert plan.cell == 24
@@ -213,3 +213,30 @@ def test_windowed_tracking_holds_a_slew_and_returns_after_a_dark_frame():
     assert rms["windows"][0] < 1.3 * rms["full"][0]        # cross-boresight
     assert rms["windows"][1] < 1.3 * rms["full"][1]        # roll
     assert np.all(rms["windows"][2:] < 1.3 * rms["full"][2:] + 0.002)   # rate, deg/s
+
+
+def _rate_run(cfg: IdentifyConfig, seed: int, frames: int = 25):
+    cam = camera(16.0)
+    solver = make_solver(cfg, cam, catalogue())
+    rng = np.random.default_rng(seed)
+    R0, rate = random_rotation(rng), np.radians([0.5, -0.8, 0.6])
+    sols = []
+    for i in range(frames):
+        stars, _ = synthetic_stars(cam, matrix_from_rotation_vector(-rate * i / 10.0) @ R0, rng)
+        sols.append(solver.solve(stars, int(i * 1e8)))
+    return rate, sols
+
+
+def test_the_rate_sigma_describes_its_errors_and_gates_rate_valid():
+    """The rate's stated 1-sigma (docs/protocol.md 2.2) against its errors from the truth."""
+    rate, sols = _rate_run(IdentifyConfig(), seed=21)
+    z = np.array([(s.rate_rad_s - rate) / s.sigma_rate_rad_s for s in sols[3:]])
+    print("rate error / sigma RMS per axis:", np.sqrt(np.mean(z ** 2, axis=0)))
+    assert np.all(np.abs(z) < 4.0)
+    assert np.all(np.sqrt(np.mean(z ** 2, axis=0)) > 0.2)      # not vacuous either
+    # a threshold below the roll axis' sigma withholds the rate (RATE_VALID clear) ...
+    roll_sigma = np.median([math.degrees(s.sigma_rate_rad_s[2]) for s in sols[3:]])
+    _, strict = _rate_run(IdentifyConfig(rate_valid_sigma_deg_s=0.5 * roll_sigma), seed=21)
+    assert all(s.ok and s.rate_rad_s is None and s.sigma_rate_rad_s is None for s in strict)
+    # ... while tracking goes on with the rate it keeps
+    assert [s.mode for s in strict[2:]] == ["tracking"] * (len(strict) - 2)

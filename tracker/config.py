@@ -305,6 +305,9 @@ class IdentifyConfig:
                                 "from their prediction", "px", min=0.1, max=1000.0)
     track_max_gap_s: float = knob(2.0, "tracking: predict only from a solution this recent",
                                   "s", min=0.0, max=3600.0)
+    rate_valid_sigma_deg_s: float = knob(0.2, "the rate is reported (ATTITUDE RATE_VALID) "
+                                         "only when its 1-sigma is below this on every "
+                                         "axis", "deg/s", min=0.0001, max=100.0)
     track_windows: bool = knob(True, "tracking with a known rate detects only in windows "
                                "around the predicted stars, plus a slice of the frame; "
                                "false: the whole frame every frame")

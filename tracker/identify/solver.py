@@ -122,9 +122,10 @@ class Solution:
     attitude_covariance); ``residual_arcsec`` the RMS fit residual per star.
     ``hip`` has one entry per input star (0 = unidentified). ``rate_rad_s`` is
     the body angular velocity in the camera frame from the last two solutions
-    (None if unknown, or if they are further apart than ``track_max_gap_s``:
-    a rate averaged over a long gap is not a rate); ``sigma_rate_rad_s`` its
-    1-sigma per axis, from the two attitudes' covariances. ``prob_false`` is the
+    (None if unknown, if they are further apart than ``track_max_gap_s``: a
+    rate averaged over a long gap is not a rate, or if its 1-sigma exceeds
+    ``rate_valid_sigma_deg_s`` on an axis); ``sigma_rate_rad_s`` that 1-sigma
+    per axis, from the two attitudes' covariances (docs/protocol.md 2.2). ``prob_false`` is the
     model probability that the accepted match is wrong (tracker.identify.verify).
     ``focal_length_mm`` and ``sigma_focal_length_mm`` are this frame's own
     estimate (NaN without a solution, or when the pixel size is unknown);
@@ -573,8 +574,11 @@ class Solver:
             else:
                 self._rate = 0.5 * (self._rate + new_rate)
                 self._rate_P = 0.25 * (self._rate_P + new_P)
-            rate = -self._rate
             rate_sigma = np.sqrt(np.diag(self._rate_P))
+            if rate_sigma.max() <= math.radians(self.cfg.rate_valid_sigma_deg_s):
+                rate = -self._rate
+            else:
+                rate_sigma = None
         else:
             self._rate = self._rate_P = None
         self._last_R, self._last_t, self._last_P = R, t_ns, P
