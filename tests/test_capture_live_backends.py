@@ -3,7 +3,7 @@
 The fakes stand in for picamera2 (tests/fake_picamera2.py: its job and request
 life cycle) and for the Pi 5's kernel (tests/fake_rp1_cfe.py: the rp1-cfe
 media graph, pads, buffers and sensor controls) and serve a real star image
-(data/real/openstartracker/img0.png, scaled to 10 bits) in the buffer layouts
+(tests/data/real/openstartracker/img0.png, scaled to 10 bits) in the buffer layouts
 the Pi delivers. Pixels must come out bit-exact; picamera2 times within 1 ms
 of the conversion done here independently (the BOOTTIME-MONOTONIC offset is
 read at two slightly different instants).
@@ -26,14 +26,12 @@ from tracker.capture.picamera2_source import Picamera2Source, compatibility_prob
 from tracker.capture.v4l2_source import V4L2Source
 from tracker.config import CaptureConfig
 
-REAL = Path(__file__).resolve().parents[2] / "shared/data/real/openstartracker/img0.png"
+REAL = Path(__file__).parent / "data" / "real" / "openstartracker" / "img0.png"
 
 
 @pytest.fixture(name="star10", scope="module")
 def fixture_star10():
     """A real star field as 10-bit values (8-bit x 4 + 3), shape (1040, 1392)."""
-    if not REAL.exists():
-        pytest.skip(f"{REAL} not present")
     image, _ = read_image(REAL)
     return image.astype(np.uint16) * 4 + 3
 

@@ -146,7 +146,11 @@ def test_a_hostile_flight_computer_leaves_the_daemon_up_and_answered(tmp_path):
     fc = FlightComputer(link_path)
     cfg = Config()
     cfg = dataclasses.replace(
+        # queue_attitude 64 (0.77 s of frames): a loaded machine that stalls the writer
+        # thread for a few frames must not decide the test; shedding ATTITUDE for replies
+        # would still fail it (line-rate replies would hold ATTITUDE past max_age_ms)
         cfg, link=dataclasses.replace(cfg.link, port=str(link_path), attitude_rate_hz=100.0,
+                                      queue_attitude=64,
                                       status_rate_hz=2.0, centroids_rate_hz=1.0,
                                       reopen_backoff_s=0.02, reopen_backoff_max_s=0.05),
         service=dataclasses.replace(cfg.service, retry_initial_s=0.05, retry_max_s=0.1,

@@ -121,7 +121,7 @@ def test_reported_sigmas_track_the_observed_errors():
 
 
 def test_solution_is_reported_at_the_image_centre_with_an_offset_principal_point():
-    """RA/Dec/roll belong to the image centre, not the principal point (DESIGN.md)."""
+    """RA/Dec/roll belong to the image centre, not the principal point (docs/conventions.md)."""
     cam = camera(16.0, cx=760.0, cy=700.0)
     solver = make_solver(IdentifyConfig(), cam, catalogue())
     rng = np.random.default_rng(15)

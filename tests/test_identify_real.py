@@ -6,15 +6,14 @@ truth (and, for the tetra3 frames, the lens's label, 35 mm): no principal
 point, no distortion, no database path. The pattern database for each field
 is built on first use into the test cache (tests/conftest.py). The image
 centre must be within 60 arcsec of the astrometry.net truth and the roll
-within 0.1 deg (the truth's own tolerances, MANIFEST.md of the shared data),
+within 0.1 deg (the truth's own tolerances, tests/data/real/README.md),
 and the focal length the solver reports within 0.5 % of the truth's scale
 (the truth's WCS scale absorbs the radial distortion that the solver fits
 separately: k1 down to -0.5 on the cedar-solve crops moves the mean scale
 over the field by about 0.3 %).
 
-Two paths: the SEP centroid lists (always here, independent of our
-detector), and the images through our detector and solver (four are
-bundled; all thirteen when the shared data sits beside the checkout).
+Two paths, both on all thirteen frames: the SEP centroid lists (independent
+of our detector), and the images through our detector and solver.
 """
 
 import json
@@ -34,7 +33,6 @@ from tracker.identify import make_solver
 from tracker.pipeline import Pipeline
 
 REAL = Path(__file__).parent / "data" / "real"
-SHARED_REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 FRAMES = [
     "tetra3/2019-07-29T204726_Alt40_Azi-135_Try1.tiff",
@@ -121,14 +119,6 @@ def test_centroid_list_solves_with_a_rough_focal_length(frame, focal_mm):
     assert_solved_within_truth(solver.solve(stars, 0), frame, cfg.identify.min_matched)
 
 
-def image_path(frame: str) -> Path | None:
-    """The real image: bundled beside its truth, or the project's shared data (CI has it)."""
-    for folder in (REAL, SHARED_REAL):
-        if (folder / frame).is_file():
-            return folder / frame
-    return None
-
-
 @pytest.mark.parametrize(("frame", "focal_mm"), cases())
 def test_image_solves_through_detector_and_solver(frame, focal_mm):
     """The whole per-frame pipeline on the real pixels, with the same rough camera.
@@ -138,20 +128,9 @@ def test_image_solves_through_detector_and_solver(frame, focal_mm):
     for hot pixels and 4 sources are found); the configuration says so
     until the detector measures the PSF itself.
     """
-    path = image_path(frame)
-    if path is None:
-        pytest.skip(f"{frame}: image not bundled and shared/data/real not beside the checkout")
     sections = {"detect": {"psf_sigma_px": 0.7}} if frame.startswith("openstartracker") else {}
     cfg = rough_config(frame, focal_mm, **sections)
-    image, depth = read_image(path, cfg.camera.bit_depth)
+    image, depth = read_image(REAL / frame, cfg.camera.bit_depth)
     result = Pipeline(cfg).process(image, depth, 0)
     assert_solved_within_truth(result.solution, frame, cfg.identify.min_matched)
 
-
-def test_truth_files_are_the_shared_ones():
-    """The bundled truth files are copies of the shared data's (when it is beside us)."""
-    if not SHARED_REAL.is_dir():
-        pytest.skip("shared/data/real not beside the checkout")
-    for frame in FRAMES:
-        assert (REAL / f"{frame}.truth.json").read_bytes() == \
-            (SHARED_REAL / f"{frame}.truth.json").read_bytes()

@@ -1,4 +1,4 @@
-"""`tracker replay` end to end: simulated frames in, the DESIGN.md contract out."""
+"""`tracker replay` end to end: simulated frames in, the contract of docs/conventions.md out."""
 
 import json
 import re
@@ -108,3 +108,12 @@ def test_overlays_of_two_folders_with_the_same_names_do_not_overwrite(tmp_path, 
                  "--overlay", str(tmp_path / "ov")]) == 0
     assert sorted(p.name for p in (tmp_path / "ov").iterdir()) == [
         "f0001.overlay.png", "night1-f0000.png.overlay.png", "night2-f0000.png.overlay.png"]
+
+
+def test_replay_jsonl_goes_into_folders_it_makes(tmp_path, frames):
+    """--jsonl results/run1/out.jsonl on a fresh clone: the folders are made, as for
+    --overlay and --report."""
+    folder, _ = frames
+    out = tmp_path / "results" / "run1" / "out.jsonl"
+    assert main(["replay", str(folder / "f0000.png"), "--jsonl", str(out), "--quiet"]) == 0
+    assert json.loads(out.read_text())["attitude"] is not None

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Build catalogue/stars.npz from ESA's Hipparcos new reduction (hip2.dat).
+"""Build tracker/data/stars.npz from ESA's Hipparcos new reduction (hip2.dat).
 
 Source: van Leeuwen (2007), "Validation of the new Hipparcos reduction",
 A&A 474, 653; CDS catalogue I/311, file hip2.dat, as shipped by the PyPI
@@ -45,7 +45,7 @@ HIP2_COLUMNS = {
 FORMAT_VERSION = 1
 HIPPARCOS_EPOCH_YEAR = 1991.25
 DEFAULT_MAG_LIMIT = 9.0
-DEFAULT_OUT = Path(__file__).resolve().parent.parent / "catalogue" / "stars.npz"
+DEFAULT_OUT = Path(__file__).resolve().parent.parent / "tracker" / "data" / "stars.npz"
 # 1980-01-01 is the earliest time a zip entry can carry; fixed for determinism.
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 

@@ -8,7 +8,7 @@
 #      stock libcamera >= 0.5), then holds it so `apt upgrade` cannot break the pair;
 #   2. copies the repository to /opt/startracker and makes a venv there with
 #      --system-site-packages (so it sees python3-picamera2 and libcamera), with
-#      numpy<2 and opencv-python-headless==4.11.0.86 (PI5-NOTES.md section 2), and
+#      numpy<2 and opencv-python-headless==4.11.0.86 (docs/pi5.md), and
 #      pytest, for the on-device tests (README "On-device checks");
 #   3. creates the unprivileged user "startracker" (groups video, dialout, i2c);
 #   4. installs /etc/startracker/config.yaml (only if absent), builds the pattern

@@ -1,6 +1,6 @@
 """Attitude representation: quaternions, rotation matrices, RA/Dec/roll.
 
-Convention (DESIGN.md): the attitude is the rotation R with
+Convention (docs/conventions.md): the attitude is the rotation R with
 ``v_cam = R @ v_icrs``; its quaternion q = [w, x, y, z] is scalar first with
 w >= 0. Reported with it are the boresight RA/Dec (ICRS) and the roll: the
 angle of celestial north at the image centre relative to image up (toward

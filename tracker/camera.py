@@ -1,6 +1,6 @@
 """Camera model: pinhole with principal point and radial distortion.
 
-Conventions (DESIGN.md):
+Conventions (docs/conventions.md):
 
 * Pixel coordinates (x, y): x = column, y = row, origin at the centre of the
   top-left pixel (that pixel spans -0.5..0.5 in both axes).

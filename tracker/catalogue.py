@@ -1,8 +1,8 @@
 """The bundled star catalogue: load it, check it, move it to the epoch.
 
-The file ``catalogue/stars.npz`` (built by ``tools/build_catalogue.py`` from
-ESA's Hipparcos new reduction, van Leeuwen 2007, CDS I/311; see
-``catalogue/README.md``) holds, per star, the HIP number, ICRS RA/Dec at
+The bundled file ``stars.npz`` (package data in ``tracker/data/``, built by
+``tools/build_catalogue.py`` from ESA's Hipparcos new reduction, van Leeuwen
+2007, CDS I/311; see ``tracker/data/README.md``) holds, per star, the HIP number, ICRS RA/Dec at
 epoch J1991.25, proper motion, parallax and Hp magnitude, sorted brightest
 first. Beside it, ``stars.npz.sha256`` holds its SHA-256 in ``sha256sum``
 format; :func:`load_catalogue` refuses a file whose bytes do not match.
@@ -44,6 +44,7 @@ import numpy as np
 
 from tracker.attitude import vector_to_radec
 from tracker.config import CatalogueConfig
+from tracker.data import data_dir
 from tracker.errors import UserError
 
 __all__ = [
@@ -138,8 +139,8 @@ class Catalogue:
 
 
 def default_catalogue_path() -> Path:
-    """The repository's ``catalogue/stars.npz`` (the package is installed editable)."""
-    return Path(__file__).resolve().parent.parent / "catalogue" / "stars.npz"
+    """The bundled ``stars.npz``, package data of :mod:`tracker.data`."""
+    return data_dir() / "stars.npz"
 
 
 def julian_year_now() -> float:

@@ -76,13 +76,13 @@ class CatalogueConfig:
     """The bundled Hipparcos-derived star list (tracker.catalogue).
 
     The bundled file holds the 78,352 stars with Hp <= 9.0. With mag_limit
-    null the solver takes as many as the field needs (catalogue/README.md):
+    null the solver takes as many as the field needs (tracker/data/README.md):
     about 150 stars in an average frame, never fewer than its pattern
     database uses; a number makes that the limit for everything.
     """
 
     path: str | None = knob(None, "catalogue file (with <file>.sha256 beside it); "
-                            "null = the bundled catalogue/stars.npz")
+                            "null = the bundled one (tracker/data/stars.npz)")
     epoch_year: float | None = knob(
         None, "observation epoch for proper motion when frames carry no absolute time, "
         "decimal Julian year; null = now (system clock); a frame's absolute time (TIME_SYNC, "
@@ -250,8 +250,8 @@ class IdentifyConfig:
 
     enabled: bool = knob(True, "identify stars and solve attitude")
     database: str | None = knob(None, "pattern database file; null = one that fits the "
-                                "camera, from catalogue/ or the cache folder, built there "
-                                "on first use", "path")
+                                "camera, from the package's data folder or the cache folder, "
+                                "built there on first use", "path")
     cache_dir: str | None = knob(None, "folder of built pattern databases; null = "
                                  "$STATE_DIRECTORY (the systemd unit's StateDirectory), else "
                                  "$XDG_CACHE_HOME/startracker, else ~/.cache/startracker",

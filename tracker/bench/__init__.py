@@ -8,6 +8,7 @@ int`` and a one-line ``__doc__``. Results go to ``--out`` (default
 
 # name -> module; `tracker bench all` runs them in this order.
 BENCHES = {
+    "api": "tracker.bench.api",
     "detect": "tracker.bench.detect",
     "protocol": "tracker.bench.protocol",
     "solve": "tracker.bench.solve",

@@ -12,7 +12,7 @@ Formats (libcamera / picamera2 names):
 - ``R10``, ``R12``, ``R16``: unpacked, one little-endian 16-bit word per pixel.
   ``R16`` is what a Pi 5 grants for mono sensors; whether 10-bit data sits in
   the low or high bits of the word is not settled for the OV2311 (see
-  PI5-NOTES.md), so the right shift is a setting (``capture.raw_shift``) and
+  docs/pi5.md), so the right shift is a setting (``capture.raw_shift``) and
   ``tracker selftest`` reports which bits vary.
 - ``R10_CSI2P``: MIPI CSI-2 packed 10-bit, 4 pixels in 5 bytes: bytes 0..3
   hold bits 9..2 of pixels 0..3, byte 4 their two low bits (pixel 0 in bits

@@ -9,8 +9,8 @@ from tracker.bench import BENCHES
 
 
 def register(sub, common) -> None:
-    p = sub.add_parser("bench", parents=[common], help="run a benchmark (detect, solve, "
-                       "protocol, soak, aberration, all) and write Markdown/JSON reports")
+    p = sub.add_parser("bench", parents=[common], help=f"run a benchmark ({', '.join(BENCHES)}, "
+                       "all) and write Markdown/JSON reports")
     names = p.add_subparsers(dest="bench", metavar="NAME", required=True)
     for name, module in BENCHES.items():
         mod = importlib.import_module(module)

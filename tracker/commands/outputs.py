@@ -33,7 +33,8 @@ def output_folder(path: str | Path, option: str) -> Path:
 def open_output(path: str | Path, option: str, mode: str = "w") -> IO:
     """A file opened for writing, ``mode`` "w", "a" or "ab" (``-``: standard output).
 
-    Standard output is returned as is and must not be closed by the caller.
+    Missing folders on the way are created, as for folder options. Standard
+    output is returned as is and must not be closed by the caller.
     """
     if str(path) == "-":
         return sys.stdout.buffer if "b" in mode else sys.stdout
@@ -41,6 +42,7 @@ def open_output(path: str | Path, option: str, mode: str = "w") -> IO:
     if target.is_dir():
         raise UserError(f"{option} {target}: is a folder, expected a file name")
     try:
+        target.parent.mkdir(parents=True, exist_ok=True)
         if "b" in mode:
             return open(target, mode)
         return open(target, mode, encoding="utf-8")

@@ -7,7 +7,7 @@ configured camera is found but not identified; that is said once on
 standard error, with both sizes.
 
 For programs: ``--jsonl FILE`` (``-``: standard output, instead of the
-lines) gets one JSON object per frame (DESIGN.md's contract,
+lines) gets one JSON object per frame (the contract in docs/conventions.md,
 :func:`frame_record`). ``--overlay DIR`` writes a picture per frame
 (tracker.overlay) and ``--report DIR`` an HTML page with a sky chart and a
 table of the frames (tracker.report). Output names are the frames' names,

@@ -22,7 +22,7 @@ name and what it found; the exit status is 1 if any check failed.
   ``link.port`` and reads them back, holding the port's lock as the service
   does (another holder is named); otherwise only checks that the device exists
   and is readable and writable by this user.
-- ``data``: every ``*.npz`` under catalogue/ matches its ``.sha256`` file,
+- ``data``: every ``*.npz`` in the package's data folder matches its ``.sha256`` file,
   and the configured catalogue loads.
 - ``clock``: the system clock's UTC and whether the kernel says NTP or PTP
   keeps it synchronised (tracker.system_clock), against

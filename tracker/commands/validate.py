@@ -6,7 +6,7 @@ Each frame (an image through the configured detector, or a
 hip}]``, as written by ``tracker simulate`` or shipped with the real
 frames). A centroid within ``--truth-px`` of a truth star is that star.
 
-* ``--affine``: the seed method (SEED-METHOD.md): the first ``--refs``
+* ``--affine``: the seed method (docs/seed-method.md): the first ``--refs``
   truth stars are the hand-picked references; an affine map pixel ->
   (RA, Dec) is fitted to them; every centroid goes to the nearest catalogue
   star within ``--tolerance-deg`` (0.1).

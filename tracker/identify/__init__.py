@@ -55,7 +55,7 @@ def database_for(cfg: IdentifyConfig, camera: CameraModel, catalogue,
     """The pattern database for this camera: the configured file, or found or built.
 
     With ``cfg.database`` null a database serving the camera over the whole
-    focal-length prior is looked for in catalogue/ and the cache folder
+    focal-length prior is looked for in the package's data folder and the cache folder
     (tracker.identify.cache) and built into the cache folder when none
     does (logged, or reported to ``progress(stage, fraction)``). A cached
     database that fails its checksum is built again.

@@ -1,4 +1,4 @@
-"""The seed method's identification (SEED-METHOD.md), kept to reproduce its table.
+"""The seed method's identification (docs/seed-method.md), kept to reproduce its table.
 
 Given at least three reference stars with known RA/Dec, fit an affine map
 pixel (x, y) -> (RA, Dec) by least squares, map every centroid, and take

@@ -6,7 +6,7 @@ pixels. It serves every camera whose ideal region radius, over the whole
 focal-length prior, lies within +-12 % of its own (:func:`serves`), so a
 lens a few percent off, or a similar camera, reuses it.
 
-:func:`find_or_build` looks in the repository's ``catalogue/`` folder and
+:func:`find_or_build` looks in the package's data folder (:mod:`tracker.data`) and
 then in the cache folder (:func:`cache_dir`) for a database that serves the
 camera and was built from the same catalogue (SHA-256 equal); when none
 does it builds one from the bundled catalogue into the cache folder, with

@@ -58,6 +58,7 @@ from pathlib import Path
 import numpy as np
 
 from tracker.config import ConfigError
+from tracker.data import data_dir
 from tracker.identify.patterns import codes, edge_angles
 from tracker.identify.skyindex import DecSorted
 
@@ -100,8 +101,8 @@ class DatabaseError(ConfigError):
 
 
 def bundled_database_dir() -> Path:
-    """The repository's ``catalogue/`` folder (databases shipped with the code)."""
-    return Path(__file__).resolve().parents[2] / "catalogue"
+    """The package's data folder: databases shipped with the package (:mod:`tracker.data`)."""
+    return data_dir()
 
 
 @dataclass(frozen=True)

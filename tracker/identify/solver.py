@@ -115,7 +115,7 @@ class LensReport:
 class Solution:
     """One frame's answer. ``R`` is v_cam = R @ v_icrs; angles in the names' units.
 
-    ``ra_deg``, ``dec_deg``, ``roll_deg`` describe the image centre (DESIGN.md),
+    ``ra_deg``, ``dec_deg``, ``roll_deg`` describe the image centre (docs/conventions.md),
     which is the boresight unless a calibrated principal point moved it.
     ``sigma_cross_arcsec`` is the RMS of the boresight's angular error,
     ``sigma_roll_arcsec`` that of the rotation about it (tracker.attitude.
@@ -157,7 +157,7 @@ class Solution:
     stages_ms: dict = field(default_factory=dict)
 
     def to_json(self) -> dict | None:
-        """The attitude record of the replay output (DESIGN.md), or None without one."""
+        """The attitude record of the replay output (docs/conventions.md), or None without one."""
         if not self.ok:
             return None
         return {"q": [float(v) for v in self.q], "ra_deg": self.ra_deg,
@@ -187,7 +187,7 @@ def _not_duplicate(xy: np.ndarray, radius: float) -> np.ndarray:
 def _centre_rotation(camera: CameraModel) -> np.ndarray:
     """Rotation (camera frame) taking the image-centre ray to +Z, the smallest one.
 
-    RA/Dec/roll are reported for the image centre (DESIGN.md); with the
+    RA/Dec/roll are reported for the image centre (docs/conventions.md); with the
     principal point elsewhere (a calibrated lens) the boresight is not there.
     """
     middle = ((camera.width - 1) / 2.0, (camera.height - 1) / 2.0)

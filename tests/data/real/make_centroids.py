@@ -1,8 +1,8 @@
-"""Extract the centroid lists of the real frames in ../shared/data/real/ (run once).
+"""Extract the centroid lists of the real frames beside this script (run once).
 
-Usage: .venv/bin/python tests/data/real/make_centroids.py ../shared/data/real
+Usage: .venv/bin/python tests/data/real/make_centroids.py
 
-Writes ``<source>/<image>.centroids.json`` beside this script: the 60
+Writes ``<source>/<image>.centroids.json`` beside each image: the 60
 brightest sources found by SEP (Barbary 2016, the Source Extractor
 algorithms; a test-time dependency of this project) after a 32-px mesh
 background subtraction, 5-sigma threshold (local noise), at least 4 connected pixels,
@@ -14,15 +14,14 @@ frames are extracted unsmoothed with at least 2 connected pixels (with the
 kernel, none of img0's astrometry.net stars is among the 60 brightest
 sources; without it, 7 of its 9 are).
 Positions are in the project's convention (x = column, y = row, (0, 0) the
-centre of the top-left pixel; SEP uses the same). The truth file is copied
-beside it unchanged. Only these small JSON files are committed, not the
-images (see README.md for their sources and licences).
+centre of the top-left pixel; SEP uses the same). Every image with a
+``<image>.truth.json`` beside it gets a list (README.md here gives their
+sources and licences).
 """
 
 from __future__ import annotations
 
 import json
-import shutil
 import sys
 from pathlib import Path
 
@@ -51,25 +50,21 @@ def extract(path: Path, settings: dict) -> list[dict]:
              "flux": round(float(o["flux"]), 1)} for o in objects]
 
 
-def main(root: str) -> int:
-    here = Path(__file__).parent
-    for truth in sorted(Path(root).glob("*/*.truth.json")):
+def main() -> int:
+    for truth in sorted(Path(__file__).parent.glob("*/*.truth.json")):
         image = truth.with_name(truth.name.removesuffix(".truth.json"))
-        out = here / truth.parent.name
-        out.mkdir(exist_ok=True)
         settings = SETTINGS.get(truth.parent.name, DEFAULT)
         stars = extract(image, settings)
         meta = json.loads(truth.read_text())
         smoothing = "" if "filter_kernel" not in settings else ", no smoothing kernel"
-        (out / f"{image.name}.centroids.json").write_text(json.dumps(
+        image.with_name(f"{image.name}.centroids.json").write_text(json.dumps(
             {"image": image.name, "width": meta["width"], "height": meta["height"],
              "method": f"sep 5 local sigma, minarea {settings['minarea']}{smoothing}, 32 px "
                        "background mesh, a/b <= 1.6, a <= 5 px", "stars": stars},
             indent=0) + "\n")
-        shutil.copyfile(truth, out / truth.name)
         print(f"{image.name}: {len(stars)} centroids")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1]))
+    sys.exit(main())
