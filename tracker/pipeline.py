@@ -21,6 +21,11 @@ its mosaic of windows, with one slab thread (a mosaic is too small to cut)
 and background tiles of a third of the window: the star sits in the middle
 tile, whose 3 x 3 median then takes the window's own sky around it.
 
+Trailed stars: with a rate known, stars whose travel over the exposure
+(from the rate: tracker.identify.predict) is long are re-centred by a
+line-spread fit (tracker.detect.trail), whole frame or windows, and
+detections of one trail that end on one centre are merged.
+
 Each frame may come with its :class:`~tracker.astrometry.observer.Observer`
 (absolute time, the observer's velocity), which the solver uses to correct
 aberration. Its time also sets the proper-motion epoch: when it is further
@@ -48,6 +53,8 @@ from tracker.catalogue import Catalogue
 from tracker.config import Config
 from tracker.detect import Detections, Detector, make_detector
 from tracker.detect.default import effective_sigma
+from tracker.detect.trail import TrailFit
+from tracker.detect.windowed import later_within
 from tracker.detect.windows import WindowDetector
 from tracker.frame_array import to_grey
 from tracker.identify import Solution, Solver, make_solver
@@ -91,6 +98,7 @@ class Pipeline:
         self._solver: Solver | None = None
         self._catalogue: Catalogue | None = None
         self._window_detectors: OrderedDict[tuple, WindowDetector] = OrderedDict()
+        self._trail = TrailFit(effective_sigma(cfg.detect.psf_sigma_px))
         idf = cfg.identify
         self._planner = WindowPlanner(
             self.camera.width, self.camera.height,
@@ -193,8 +201,8 @@ class Pipeline:
         shape = image.shape[:2] if image.ndim >= 2 else (0, 0)
         identify = self.cfg.identify.enabled and tuple(shape) == (self.camera.height,
                                                                   self.camera.width)
+        exposure = self.cfg.capture.exposure_us / 1e6 if exposure_s is None else exposure_s
         if identify and self.cfg.identify.track_windows:
-            exposure = self.cfg.capture.exposure_us / 1e6 if exposure_s is None else exposure_s
             windowed = self._process_windows(image, bit_depth, t_ns, observer, exposure, t0)
             if windowed is not None:
                 return windowed
@@ -206,10 +214,29 @@ class Pipeline:
         elif not identify:
             reason = "frame_size"
         else:
-            solution = self.solve_stars(detections.stars, t_ns, observer)
+            stars = self._untrailed(image, detections.stars, t_ns, exposure, stages)
+            solution = self.solve_stars(stars, t_ns, observer)
             stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})
         elapsed = (time.perf_counter_ns() - t0) / 1e6
         return FrameResult(detections, solution, elapsed, stages, reason, observer)
+
+    def _untrailed(self, image: np.ndarray, stars: np.ndarray, t_ns: int, exposure_s: float,
+                   stages: dict) -> np.ndarray:
+        """``stars`` with trailed ones re-centred and merged (module docstring), or as given."""
+        if self._solver is None or len(stars) == 0 or image.ndim != 2:
+            return stars
+        xy = np.stack((stars["x"], stars["y"]), axis=1)
+        smear = self._solver.smear_px(xy, t_ns, exposure_s)
+        if smear is None or not np.any(np.hypot(smear[:, 0], smear[:, 1])
+                                       >= self._trail.min_length):
+            return stars
+        t0 = time.perf_counter_ns()
+        fitted = self._trail.refine(image, xy, smear)
+        stars = stars.copy()
+        stars["x"], stars["y"] = fitted[:, 0], fitted[:, 1]
+        stars = stars[~later_within(fitted[:, 0], fitted[:, 1], self._trail.sigma)]
+        stages["trail"] = (time.perf_counter_ns() - t0) / 1e6
+        return stars
 
     def _process_windows(self, image: np.ndarray, bit_depth: int, t_ns: int,
                          observer: Observer, exposure_s: float, t0: int) -> FrameResult | None:
@@ -224,10 +251,11 @@ class Pipeline:
             return None
         detections = self.window_detector_for(plan.cell, image, bit_depth).detect(
             image, plan.origins)
-        solution = solver.solve(detections.stars, t_ns, observer, search_area_px=plan.area_px)
+        stages = {f"windows.{k}": v for k, v in detections.stages_ms.items()}
+        stars = self._untrailed(image, detections.stars, t_ns, exposure_s, stages)
+        solution = solver.solve(stars, t_ns, observer, search_area_px=plan.area_px)
         if not solution.ok:
             return None
-        stages = {f"windows.{k}": v for k, v in detections.stages_ms.items()}
         stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})
         elapsed = (time.perf_counter_ns() - t0) / 1e6
         return FrameResult(detections, solution, elapsed, stages, None, observer,

@@ -15,4 +15,5 @@ BENCHES = {
     "soak": "tracker.bench.soak",
     "aberration": "tracker.bench.aberration",
     "track": "tracker.bench.track",
+    "device": "tracker.bench.device",
 }

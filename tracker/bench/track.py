@@ -120,7 +120,7 @@ def _row(i: int, result, R_true, rate_deg_s) -> dict:
     row = {"i": i, "ok": bool(sol is not None and sol.ok), "mode": None, "windows": result.windows,
            "ms": result.time_ms, "detect_ms": detect, "identify_ms": identify,
            "stars": int(result.detections.count), "rate_err_deg_s": None,
-           "rate_sigma_deg_s": None}
+           "rate_sigma_deg_s": None, "stages_ms": dict(result.stages_ms)}
     if row["ok"]:
         cross, roll = attitude_error(sol.R, R_true)
         row.update(mode=sol.mode, cross_arcsec=cross * _ARCSEC, roll_arcsec=roll * _ARCSEC,

@@ -78,7 +78,7 @@ from tracker.detect.result import StarFlag
 from tracker.identify.database import BoundDatabase
 from tracker.identify.lens import LensFilter, LensPrior, LensState, fit_frame
 from tracker.identify.lost import Hypothesis, PatternSearch, WorkBudget
-from tracker.identify.predict import TrackPrediction, predict_positions
+from tracker.identify.predict import TrackPrediction, pixel_jacobian, predict_positions
 from tracker.identify.verify import Projector, false_match_probability, match_nearest
 from tracker.timing import StageTimer
 
@@ -405,6 +405,16 @@ class Solver:
         catalogue = np.concatenate((cat_idx, np.full(len(vectors) - len(cat_idx), -1)))
         return TrackPrediction(R=R, xy=xy[inside], sigma_px=sigma[inside],
                                smear_px=smear[inside], catalogue=catalogue[inside], dt_s=dt)
+
+    def smear_px(self, xy: np.ndarray, t_ns: int, exposure_s: float) -> np.ndarray | None:
+        """(n, 2) travel of image positions ``xy`` over an exposure at ``t_ns``, px.
+
+        From the current rate (tracker.identify.predict); None without one.
+        """
+        if not self._can_track(t_ns) or self._rate is None:
+            return None
+        camera = self.lens_camera()
+        return pixel_jacobian(camera, camera.pixel_to_vector(xy)) @ (self._rate * exposure_s)
 
     def _can_track(self, t_ns: int) -> bool:
         if self._last_R is None or self._last_t is None:
