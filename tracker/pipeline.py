@@ -253,7 +253,9 @@ class Pipeline:
             image, plan.origins)
         stages = {f"windows.{k}": v for k, v in detections.stages_ms.items()}
         stars = self._untrailed(image, detections.stars, t_ns, exposure_s, stages)
-        solution = solver.solve(stars, t_ns, observer, search_area_px=plan.area_px)
+        named = prediction.catalogue[:plan.stars]
+        solution = solver.solve(stars, t_ns, observer, search_area_px=plan.area_px,
+                                predicted=named[named >= 0])
         if not solution.ok:
             return None
         stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})

@@ -60,6 +60,12 @@ class WindowDetector:
         self.detector = make(self.mosaic.shape)
         self.margin = int(margin)
         self.table = StarTable(max_stars)
+        # flat frame index of every mosaic pixel = its window's corner + these offsets
+        dy, dx = np.mgrid[0:self.cell, 0:self.cell]
+        self.offsets = (dy[None, :, None, :] * self.frame_shape[1]
+                        + dx[None, :, None, :]).astype(np.intp)   # (1, cell, 1, cell)
+        self.corner = np.zeros((rows, 1, self.columns, 1), np.intp)
+        self.index = np.zeros((rows, self.cell, self.columns, self.cell), np.intp)
         # frame (x0, y0) of each slot; slots beyond ``cells`` repeat the first windows
         # (a blank slot would lower its neighbours' background noise)
         self.placed = np.zeros((rows * self.columns, 2), np.intp)
@@ -73,9 +79,11 @@ class WindowDetector:
         order = np.lexsort((origins[:, 0], origins[:, 1]))
         self.placed[:self.cells] = origins[order]
         self.placed[self.cells:] = self.placed[:len(self.placed) - self.cells]
-        for slot, (x0, y0) in enumerate(self.placed):
-            r, k = divmod(slot, cols)
-            self.mosaic[r * c:(r + 1) * c, k * c:(k + 1) * c] = image[y0:y0 + c, x0:x0 + c]
+        np.multiply(self.placed[:, 1], self.frame_shape[1], out=self.corner.reshape(-1))
+        self.corner.reshape(-1)[:] += self.placed[:, 0]
+        np.add(self.corner, self.offsets, out=self.index)
+        np.take(np.ascontiguousarray(image).reshape(-1), self.index.reshape(self.mosaic.shape),
+                out=self.mosaic)
         found = self.detector.detect(self.mosaic)
         stars = found.stars
         mx, my = stars["x"], stars["y"]

@@ -128,7 +128,8 @@ class Solution:
     per axis, from the two attitudes' covariances (docs/protocol.md 2.2). ``prob_false`` is the
     model probability that the accepted match is wrong (tracker.identify.verify).
     ``focal_length_mm`` and ``sigma_focal_length_mm`` are this frame's own
-    estimate (NaN without a solution, or when the pixel size is unknown);
+    estimate (NaN without a solution, when the pixel size is unknown, or on
+    the windowed frames that took the filtered lens: ``track_lens_every``);
     ``lens`` is the slow filter's estimate after this frame. ``patterns`` and
     ``hypotheses`` count the lost-in-space work done.
     """
@@ -259,6 +260,7 @@ class Solver:
         self._rate_P: np.ndarray | None = None   # its covariance, (rad/s)^2
         self._last_P: np.ndarray | None = None   # the last attitude's covariance, rad^2
         self._unknown = np.zeros((0, 3))   # directions of unidentified stars followed
+        self._windowed = 0   # windowed tracking frames in a row (the lens fit's turn)
         self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
         self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
 
@@ -297,16 +299,18 @@ class Solver:
 
     # -- public --------------------------------------------------------------
 
-    def solve(self, stars, t_ns: int, observer=None, search_area_px: float | None = None
-              ) -> Solution:
+    def solve(self, stars, t_ns: int, observer=None, search_area_px: float | None = None,
+              predicted: np.ndarray | None = None) -> Solution:
         """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module.
 
         ``observer``: the frame's tracker.astrometry.observer.Observer (None: unknown).
         ``search_area_px``: the stars come from windows of this total area
-        around this solver's :meth:`prediction` (tracker.identify.windows):
-        only tracking is tried, its false-match odds taken over that area,
-        and a frame that does not verify fails with ``not_verified`` and
-        keeps the state (the caller searches the whole frame next).
+        around the catalogue stars ``predicted`` (indices; this solver's
+        :meth:`prediction`, tracker.identify.windows): only tracking is
+        tried, against those stars, its false-match odds taken over that
+        area, the lens fitted on one such frame in ``track_lens_every``; a
+        frame that does not verify fails with ``not_verified`` and keeps the
+        state (the caller searches the whole frame next).
         """
         timer = self._timer
         timer.reset()
@@ -321,13 +325,14 @@ class Solver:
             return self._fail(prepared, hip)
         idx, xy, flux = prepared
         lens_cam = self.lens_camera()
+        subset = None if search_area_px is None else np.asarray(predicted)
         if self._can_track(t_ns):
             timer.start("track")
-            R = self._track(xy, lens_cam, t_ns)
+            R = self._track(xy, lens_cam, t_ns, subset)
             if R is not None:
                 timer.start("refine")
                 sol = self._finish(R, None, xy, flux, idx, hip, t_ns, "tracking", None, None,
-                                   search_area_px or self._area)
+                                   search_area_px or self._area, subset)
                 if sol is not None:
                     return sol
         if search_area_px is not None:
@@ -428,10 +433,19 @@ class Solver:
         dt = (t_ns - self._last_t) / 1e9
         return matrix_from_rotation_vector(self._rate * dt) @ self._last_R
 
-    def _track(self, xy, camera: CameraModel, t_ns: int) -> np.ndarray | None:
+    def _project(self, R, camera: CameraModel, subset: np.ndarray | None):
+        """(catalogue indices, pixels) of the catalogue stars in the image, or of ``subset``."""
+        if subset is None:
+            return self._cat_proj.predict(R, camera, beta=self._beta)
+        pix = camera.vector_to_pixel(self._seen(subset) @ R.T)
+        inside = camera.in_frame(pix)
+        return subset[inside], pix[inside]
+
+    def _track(self, xy, camera: CameraModel, t_ns: int,
+               subset: np.ndarray | None = None) -> np.ndarray | None:
         """The attitude from the predicted one after one gated pass, or None."""
         R = self._predicted(t_ns)
-        cat_idx, pred = self._cat_proj.predict(R, camera, beta=self._beta)
+        cat_idx, pred = self._project(R, camera, subset)
         which, _ = match_nearest(xy, pred, self.cfg.track_gate_px)
         ok = which >= 0
         if np.count_nonzero(ok) < self.cfg.min_matched:
@@ -516,22 +530,24 @@ class Solver:
         off = np.abs(diff - np.median(diff)) > self.cfg.mag_tolerance
         ok[rows[off]] = False
 
-    def _match_catalogue(self, R, camera, xy, flux, radius: float):
-        """(ok mask, which, cat_idx, predictions) of the image stars against the catalogue."""
-        cat_idx, pred = self._cat_proj.predict(R, camera, beta=self._beta)
-        which, _ = match_nearest(xy, pred, radius)
+    def _match_catalogue(self, R, camera, xy, flux, radius: float, subset=None):
+        """(ok mask, which, cat_idx, predictions, distances) of the image stars against
+        the catalogue (or its ``subset``)."""
+        cat_idx, pred = self._project(R, camera, subset)
+        which, dist = match_nearest(xy, pred, radius)
         ok = which >= 0
         self._photometric_check(ok, which, cat_idx, flux)
-        return ok, which, cat_idx, pred
+        return ok, which, cat_idx, pred, dist
 
     def _finish(self, R, prob, xy, flux, idx, hip, t_ns, mode, budget, f_px,
-                area_px: float | None = None) -> Solution | None:
+                area_px: float | None = None, subset: np.ndarray | None = None
+                ) -> Solution | None:
         """Refine against the catalogue, fit the lens, update the state (module docstring).
 
         ``prob`` None (tracking) means: verify here, with the refined matches
         (the stars found in ``area_px``); returns None if they do not verify.
         ``f_px``: the focal length lost in space found with ``R`` (None: the
-        filtered lens's).
+        filtered lens's). ``subset``: windowed tracking (see :meth:`solve`).
         """
         cfg = self.cfg
         camera = self.lens_camera()
@@ -542,14 +558,15 @@ class Solver:
             # radius the last frame's residuals gave
             radius = self._radius
         else:
-            ok, which, cat_idx, _ = self._match_catalogue(R, camera, xy, flux,
-                                                          self._first_radius())
+            ok, which, cat_idx, _, _ = self._match_catalogue(R, camera, xy, flux,
+                                                             self._first_radius())
             if np.count_nonzero(ok) < 4:
                 return None
             first = fit_frame(xy[ok], self._seen(cat_idx[which[ok]]), R, camera,
                               self._prior, cfg.centroid_sigma_px)
             R, camera, radius = first.R, first.camera, self._final_radius(first.residuals)
-        ok, which, cat_idx, pred = self._match_catalogue(R, camera, xy, flux, radius)
+        ok, which, cat_idx, pred, dist = self._match_catalogue(R, camera, xy, flux, radius,
+                                                               subset)
         n = int(np.count_nonzero(ok))
         if prob is None:
             prob = false_match_probability(n, len(xy), len(pred), radius, area_px, 1)
@@ -558,9 +575,12 @@ class Solver:
         if n < 4:
             return None
         ref = self._seen(cat_idx[which[ok]])
-        frame = fit_frame(xy[ok], ref, R, camera, self._prior, cfg.centroid_sigma_px)
-        self._radius = self._final_radius(frame.residuals)
-        self.lens.update(frame, t_ns)
+        frame = None
+        self._windowed = self._windowed + 1 if subset is not None else 0
+        if self._windowed % cfg.track_lens_every == 0:
+            frame = fit_frame(xy[ok], ref, R, camera, self._prior, cfg.centroid_sigma_px)
+            self.lens.update(frame, t_ns)
+        self._radius = self._final_radius(dist[ok] if frame is None else frame.residuals)
         state = self.lens.state()
         lens_cam = dataclasses.replace(self.camera, f_px=state.f_px, k1=state.k1)
         obs = lens_cam.pixel_to_vector(xy[ok])
@@ -602,8 +622,10 @@ class Solver:
             sigma_roll_arcsec=math.sqrt(P[2, 2]) * _ARCSEC,
             residual_arcsec=math.sqrt(resid2 / n) * _ARCSEC, rate_rad_s=rate,
             sigma_rate_rad_s=rate_sigma,
-            prob_false=prob, focal_length_mm=frame.camera.f_px * self._mm_per_px,
-            sigma_focal_length_mm=math.sqrt(frame.cov[0, 0]) * self._mm_per_px,
+            prob_false=prob,
+            focal_length_mm=math.nan if frame is None else frame.camera.f_px * self._mm_per_px,
+            sigma_focal_length_mm=(math.nan if frame is None
+                                   else math.sqrt(frame.cov[0, 0]) * self._mm_per_px),
             lens=self._lens_report(state),
             patterns=budget.patterns if budget else 0,
             hypotheses=budget.hypotheses if budget else 0, stages_ms=dict(self._timer.ms))
