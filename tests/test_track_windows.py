@@ -280,3 +280,19 @@ def test_normal_cdf():
     z = np.linspace(-6, 6, 121)
     exact = np.array([0.5 * (1 + math.erf(v / math.sqrt(2))) for v in z])
     np.testing.assert_allclose(normal_cdf(z), exact, atol=2e-7)
+
+
+def test_windows_that_do_not_verify_hand_the_frame_to_lost_in_space():
+    """Locked on one field, shown another: the windows fail, the whole frame is solved."""
+    cfg, cat, rng = _sky(seed=11)
+    here = render_sky(cfg.camera, cat, matrix_from_radec_roll(*np.radians((40, 20, 0))),
+                      cfg.sim, rng)
+    there = render_sky(cfg.camera, cat, matrix_from_radec_roll(*np.radians((200, -50, 90))),
+                       cfg.sim, rng)
+    pipe = Pipeline(cfg)
+    for i in range(4):
+        r = pipe.process(here.image, 10, int(i * 1e8))
+    assert r.windows > 0 and r.solution.mode == "tracking"
+    r = pipe.process(there.image, 10, int(4 * 1e8))
+    assert r.windows == 0 and r.solution.ok and r.solution.mode == "lost_in_space"
+    assert attitude_error(r.solution.R, there.R)[0] < 10 * ARCSEC
