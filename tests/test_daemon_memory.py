@@ -10,9 +10,7 @@ packets, snapshots) but keeps none of it.
 """
 
 import dataclasses
-import os
 import threading
-import time
 import tracemalloc
 
 import numpy as np
@@ -50,15 +48,7 @@ def test_the_whole_loop_keeps_nothing_per_frame(tmp_path):
 
     fc = ReplugPty(tmp_path / "fcu")
     stop = threading.Event()
-
-    def drain():
-        while not stop.is_set():
-            try:
-                os.read(fc.master, 65536)
-            except (BlockingIOError, OSError):
-                time.sleep(0.002)
-
-    drainer = threading.Thread(target=drain, daemon=True)
+    drainer = threading.Thread(target=fc.drain_until, args=(stop,), daemon=True)
     drainer.start()
     daemon = Daemon(cfg, source_factory=lambda: FakeSource(frames()), pipeline=Pipeline(cfg),
                     link=DaemonLink(cfg), notifier=Notifier(""))

@@ -35,7 +35,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import tempfile
 import threading
 import time
@@ -188,14 +187,6 @@ def memory_run(cfg: Config, catalogue, frames: int, warmup: int, seed: int) -> d
         service=dataclasses.replace(cfg.service, frames=0, watchdog_s=0.0))
     fc = ReplugPty(tmp / "fcu")
     stop = threading.Event()
-
-    def drain():
-        while not stop.is_set():
-            try:
-                os.read(fc.master, 65536)
-            except (BlockingIOError, OSError):
-                time.sleep(0.002)
-
     daemon = Daemon(cfg, source_factory=lambda: make_source(cfg), pipeline=Pipeline(cfg),
                     link=DaemonLink(cfg), notifier=Notifier(""))
     seen = {"k": 0, "windowed": 0, "held": {}}
@@ -210,7 +201,7 @@ def memory_run(cfg: Config, catalogue, frames: int, warmup: int, seed: int) -> d
 
     daemon.on_frame = on_frame
     daemon.pipeline.solver  # noqa: B018  (catalogue and database: start-up, not per frame)
-    drainer = threading.Thread(target=drain, daemon=True)
+    drainer = threading.Thread(target=fc.drain_until, args=(stop,), daemon=True)
     drainer.start()
     tracemalloc.start()
     t0 = time.monotonic()

@@ -46,6 +46,14 @@ class ReplugPty:
         for fd in old:
             os.close(fd)
 
+    def drain_until(self, stop: threading.Event) -> None:
+        """Read and drop what the tracker sends until ``stop`` is set (a thread's target)."""
+        while not stop.is_set():
+            try:
+                os.read(self.master, 65536)
+            except (BlockingIOError, OSError):
+                stop.wait(0.002)
+
     def close(self) -> None:
         os.close(self.master)
         os.close(self._slave)
