@@ -18,9 +18,12 @@ as the median of the box's border, has one: the trail's centre.
 
 Used by tracking, which knows the smear of each star from the rate
 (tracker.identify.predict); stars whose trail is shorter than
-``MIN_TRAIL_SIGMAS`` sigma keep their windowed centroid (the two agree
-there), and so do stars whose box leaves the frame or whose fit does not
-converge within ``max_shift`` px of the start.
+``MIN_TRAIL_SIGMAS`` sigma keep their windowed centroid, and so do stars
+whose box leaves the frame or whose fit does not converge within
+``max_shift`` px of the start. The two agree on short trails: on realistic
+16 mm frames (PSF 1.0-1.6 px, 3 fields each, 50-110 stars) their RMS errors
+against the truth differed by less than 10 %, either way, up to 2.5 sigma
+of trail; from 3 sigma the fit's was 10-40 % lower.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ import numpy as np
 
 __all__ = ["TrailFit", "normal_cdf", "MIN_TRAIL_SIGMAS"]
 
-MIN_TRAIL_SIGMAS = 1.5
+MIN_TRAIL_SIGMAS = 2.5
 
 
 def normal_cdf(z: np.ndarray) -> np.ndarray:
@@ -45,10 +48,15 @@ def normal_cdf(z: np.ndarray) -> np.ndarray:
 
 
 class TrailFit:
-    """Fits trailed stars of a PSF of ``sigma`` px; ``iterations`` Gauss-Newton steps."""
+    """Fits trailed stars of a PSF of ``sigma`` px; at most ``iterations`` Gauss-Newton steps.
 
-    def __init__(self, sigma: float, iterations: int = 6, max_shift: float = 3.0) -> None:
+    The steps stop once none moves a centre by ``tolerance`` px or more.
+    """
+
+    def __init__(self, sigma: float, iterations: int = 6, max_shift: float = 3.0,
+                 tolerance: float = 1e-3) -> None:
         self.sigma = float(sigma)
+        self.tolerance = float(tolerance)
         self.min_length = MIN_TRAIL_SIGMAS * self.sigma     # shorter trails are not fitted
         self.iterations = int(iterations)
         self.max_shift = float(max_shift)
@@ -93,6 +101,8 @@ class TrailFit:
             step = np.zeros_like(grad)
             step[good] = np.linalg.solve(hess[good], grad[good][..., None])[..., 0]
             c = c + step[:, :2]
+            if not np.abs(step[:, :2]).max() >= self.tolerance:     # converged (or NaN)
+                break
         ok = np.all(np.isfinite(c), axis=1) & np.all(np.abs(c - out[rows]) <= self.max_shift,
                                                      axis=1)
         out[rows[ok]] = c[ok]
