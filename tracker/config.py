@@ -313,6 +313,10 @@ class IdentifyConfig:
                                "false: the whole frame every frame")
     track_window_stars: int = knob(64, "tracking: brightest predicted catalogue stars "
                                    "given a window", "stars", min=4, max=1024)
+    track_window_mag_margin: float = knob(0.5, "tracking: windows only for predicted stars "
+                                          "at most this much fainter than the faintest "
+                                          "star matched lately (that limit falls by 0.02 "
+                                          "mag a frame at most)", "mag", min=0.0, max=30.0)
     track_window_unknown: int = knob(4, "tracking: unidentified stars of the last frame "
                                      "(brightest) followed in windows too", "stars", min=0,
                                      max=256)

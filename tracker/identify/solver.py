@@ -88,6 +88,9 @@ _ARCSEC = math.degrees(1.0) * 3600.0
 _PRIOR_DOF = 3.0
 _FIRST_PASS_PX = 3.0
 _CONE_REUSE_RAD = math.radians(0.5)   # tracking's catalogue cone: 0.5 deg wider, reused
+# the faintest magnitude tracking expects to see falls by at most this a frame: a star
+# at the detection limit, seen in one frame in two, keeps the windows' count steady
+_FAINTEST_DECAY_MAG = 0.02
 
 
 @dataclass(frozen=True)
@@ -263,6 +266,7 @@ class Solver:
         self._windowed = 0   # windowed tracking frames in a row (the lens fit's turn)
         self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
         self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
+        self._faintest = math.inf   # catalogue magnitude of the faintest stars matched lately
 
     def lens_camera(self) -> CameraModel:
         """The camera model with the filtered focal length and k1."""
@@ -383,8 +387,14 @@ class Solver:
         """The stars tracking follows into a frame at ``t_ns``, or None without a rate.
 
         The ``identify.track_window_stars`` brightest catalogue stars predicted
-        in the image, then the ``track_window_unknown`` brightest unidentified
-        stars of the last frame, each with its uncertainty and its smear over
+        in the image no fainter than ``track_window_mag_margin`` below the
+        faintest star matched lately (the last solution's faintest, or the
+        limit before less ``_FAINTEST_DECAY_MAG`` a frame, whichever is
+        fainter: fainter stars would not be found, their windows would cost
+        without a star; a star a little fainter found in its window raises
+        the limit for the next frame),
+        then the ``track_window_unknown`` brightest unidentified stars of the
+        last frame, each with its uncertainty and its smear over
         ``exposure_s`` (tracker.identify.predict). Needs a recent solution and
         a rate (the first frame after a lock has none: its stars are searched
         in the whole frame).
@@ -397,8 +407,10 @@ class Solver:
         camera = self.lens_camera()
         beta = None if observer is None else observer.beta()
         cat_idx, _ = self._cat_proj.predict(R, camera, beta=beta)
-        cat_idx = cat_idx[np.argsort(self._cat_mag[cat_idx], kind="stable")]
-        cat_idx = cat_idx[:cfg.track_window_stars]
+        mag = self._cat_mag[cat_idx]
+        order = np.argsort(mag, kind="stable")
+        bright = np.count_nonzero(mag <= self._faintest + cfg.track_window_mag_margin)
+        cat_idx = cat_idx[order[:min(bright, cfg.track_window_stars)]]
         ref = self._cat_vectors[cat_idx]
         if beta is not None:
             ref = aberrate(ref, beta)
@@ -575,6 +587,10 @@ class Solver:
         if n < 4:
             return None
         ref = self._seen(cat_idx[which[ok]])
+        faintest = float(self._cat_mag[cat_idx[which[ok]]].max())
+        if math.isfinite(self._faintest):
+            faintest = max(faintest, self._faintest - _FAINTEST_DECAY_MAG)
+        self._faintest = faintest
         frame = None
         self._windowed = self._windowed + 1 if subset is not None else 0
         if self._windowed % cfg.track_lens_every == 0:
