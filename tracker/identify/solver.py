@@ -246,6 +246,8 @@ class Solver:
         self._timer = StageTimer()
         self._prior = lens_prior(cfg, camera)
         self.lens = LensFilter(self._prior, cfg.lens_time_constant_s)
+        self._lens_cam: tuple[LensState, CameraModel] | None = None   # lens_camera's last
+        self._obs: tuple | None = None   # (camera, xy, their unit vectors): _observed's last
         self.reset()
 
     def reset(self, lens: bool = False) -> None:
@@ -269,9 +271,22 @@ class Solver:
         self._faintest = math.inf   # catalogue magnitude of the faintest stars matched lately
 
     def lens_camera(self) -> CameraModel:
-        """The camera model with the filtered focal length and k1."""
+        """The camera model with the filtered focal length and k1 (one object per estimate)."""
         state = self.lens.state()
-        return dataclasses.replace(self.camera, f_px=state.f_px, k1=state.k1)
+        if self._lens_cam is None or self._lens_cam[0] is not state:
+            self._lens_cam = (state, dataclasses.replace(self.camera, f_px=state.f_px,
+                                                         k1=state.k1))
+        return self._lens_cam[1]
+
+    def _observed(self, camera: CameraModel, xy: np.ndarray) -> np.ndarray:
+        """Unit vectors (n, 3) of the image stars ``xy`` through ``camera``.
+
+        Kept for the last (camera, xy) pair: tracking and refinement of a
+        frame look at the same stars through the same lens.
+        """
+        if self._obs is None or self._obs[0] is not camera or self._obs[1] is not xy:
+            self._obs = (camera, xy, camera.pixel_to_vector(xy))
+        return self._obs[2]
 
     # -- input ---------------------------------------------------------------
 
@@ -426,12 +441,18 @@ class Solver:
     def smear_px(self, xy: np.ndarray, t_ns: int, exposure_s: float) -> np.ndarray | None:
         """(n, 2) travel of image positions ``xy`` over an exposure at ``t_ns``, px.
 
-        From the current rate (tracker.identify.predict); None without one.
+        From the current rate (tracker.identify.predict), through the pinhole
+        (distortion changes it by k1 rho^2, a few per cent of a few pixels at
+        the corners); None without a rate.
         """
         if not self._can_track(t_ns) or self._rate is None:
             return None
         camera = self.lens_camera()
-        return pixel_jacobian(camera, camera.pixel_to_vector(xy)) @ (self._rate * exposure_s)
+        xy = np.asarray(xy, dtype=np.float64)
+        pinhole = np.ones((len(xy), 3))
+        pinhole[:, 0] = (xy[:, 0] - camera.cx) / camera.f_px
+        pinhole[:, 1] = (xy[:, 1] - camera.cy) / camera.f_px
+        return pixel_jacobian(camera, pinhole) @ (self._rate * exposure_s)
 
     def _can_track(self, t_ns: int) -> bool:
         if self._last_R is None or self._last_t is None:
@@ -462,7 +483,7 @@ class Solver:
         ok = which >= 0
         if np.count_nonzero(ok) < self.cfg.min_matched:
             return None
-        return solve_wahba(camera.pixel_to_vector(xy[ok]), self._seen(cat_idx[which[ok]]))
+        return solve_wahba(self._observed(camera, xy)[ok], self._seen(cat_idx[which[ok]]))
 
     def _seen(self, cat_idx: np.ndarray) -> np.ndarray:
         """Catalogue directions as this frame's observer sees them (module docstring)."""
@@ -598,8 +619,9 @@ class Solver:
             self.lens.update(frame, t_ns)
         self._radius = self._final_radius(dist[ok] if frame is None else frame.residuals)
         state = self.lens.state()
-        lens_cam = dataclasses.replace(self.camera, f_px=state.f_px, k1=state.k1)
-        obs = lens_cam.pixel_to_vector(xy[ok])
+        lens_cam = self.lens_camera()
+        observed = self._observed(lens_cam, xy)
+        obs = observed[ok]
         R = solve_wahba(obs, ref)
         resid2 = float(np.square(obs - ref @ R.T).sum())
         sigma0 = cfg.centroid_sigma_px / lens_cam.f_px
@@ -629,7 +651,7 @@ class Solver:
             self._rate = self._rate_P = None
         self._last_R, self._last_t, self._last_P = R, t_ns, P
         unmatched = np.flatnonzero(~ok)[:self.cfg.track_window_unknown]
-        self._unknown = lens_cam.pixel_to_vector(xy[unmatched]) @ R
+        self._unknown = observed[unmatched] @ R
         self._timer.stop()
         return Solution(
             ok=True, reason=None, hip=hip, mode=mode, R=R, q=quat_from_matrix(R),

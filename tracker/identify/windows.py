@@ -101,13 +101,17 @@ class WindowPlanner:
         return WindowPlan(cell=cell, origins=o, stars=n_star, area_px=float(count * cell * cell))
 
     def _sweep(self, cell: int, first: int, count: int) -> None:
-        """Fill windows ``first``..``count`` with the sweep's next places (module docstring)."""
+        """Fill windows ``first``..``count`` with the sweep's next places (module docstring).
+
+        The sweep walks a grid of ``cell`` px from the top-left, row after row,
+        and starts again at the top after the last row.
+        """
+        across = -(-self.width // cell)
+        down = -(-self.height // cell)
         x, y = self._next
-        for k in range(first, count):
-            self.origins[k] = (min(x, self.width - cell), min(y, self.height - cell))
-            x += cell
-            if x >= self.width:
-                x, y = 0, y + cell
-                if y >= self.height:
-                    y = 0
-        self._next = (x, y)
+        start = (min(y // cell, down - 1)) * across + min(x // cell, across - 1)
+        steps = (start + np.arange(count - first + 1)) % (across * down)
+        row, col = np.divmod(steps, across)
+        self.origins[first:count, 0] = np.minimum(col[:-1] * cell, self.width - cell)
+        self.origins[first:count, 1] = np.minimum(row[:-1] * cell, self.height - cell)
+        self._next = (int(col[-1]) * cell, int(row[-1]) * cell)
