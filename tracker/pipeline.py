@@ -15,11 +15,15 @@ and a rate, the frame is detected only in windows around the stars it
 predicts plus a sweeping slice of the frame (tracker.identify.windows,
 tracker.detect.windows) and solved from those; if they do not verify (or
 the prediction is too uncertain for the largest window) the whole frame is
-detected and solved as without a lock. A detector is kept per window size and
-count (the :data:`WINDOW_DETECTORS_KEPT` last used), each made by
-``make_detector`` for its mosaic of windows, with one slab thread (a mosaic is too small to cut)
+detected and solved as without a lock. A detector is kept per window size
+(the :data:`DETECTORS_KEPT` last used), each made by ``make_detector`` for
+its mosaic of windows, with one slab thread (a mosaic is too small to cut)
 and background tiles of a third of the window: the star sits in the middle
 tile, whose 3 x 3 median then takes the window's own sky around it.
+A windowed frame's ``stages_ms``: ``track.plan`` (from the frame's start to
+its windows: prediction and planning), ``windows.<stage>`` (the detector's
+stages on the mosaic), ``windows.gather`` (the mosaic and what the
+detector does outside its stages), ``trail``, ``identify.<stage>``.
 
 Trailed stars: with a rate known, stars whose travel over the exposure
 (from the rate: tracker.identify.predict) is long are re-centred by a
@@ -55,20 +59,17 @@ from tracker.detect import Detections, Detector, make_detector
 from tracker.detect.default import effective_sigma
 from tracker.detect.trail import TrailFit
 from tracker.detect.windowed import later_within
-from tracker.detect.windows import MOSAIC_COLUMNS, WindowDetector
+from tracker.detect.windows import WindowDetector
 from tracker.frame_array import to_grey
 from tracker.identify import Solution, Solver, make_solver
 from tracker.identify.windows import WindowPlanner
 
-__all__ = ["Pipeline", "FrameResult", "DETECTORS_KEPT", "WINDOW_DETECTORS_KEPT"]
+__all__ = ["Pipeline", "FrameResult", "DETECTORS_KEPT"]
 
 log = logging.getLogger(__name__)
 
 # Detectors kept for frame sizes seen lately: the camera's and one other.
 DETECTORS_KEPT = 2
-# Window detectors kept (window side and count: tracker.identify.windows): a few
-# neighbouring mosaics, made once, as the stars in the field change
-WINDOW_DETECTORS_KEPT = 4
 
 
 @dataclass
@@ -107,8 +108,7 @@ class Pipeline:
             self.camera.width, self.camera.height,
             idf.track_window_stars + idf.track_window_unknown + idf.track_sweep_windows,
             idf.track_sweep_windows, idf.track_window_sigma,
-            math.ceil(3.0 * effective_sigma(cfg.detect.psf_sigma_px)), idf.track_window_max_px,
-            quantum=MOSAIC_COLUMNS)
+            math.ceil(3.0 * effective_sigma(cfg.detect.psf_sigma_px)), idf.track_window_max_px)
 
     def detector_for(self, shape: tuple[int, int], bit_depth: int) -> Detector:
         """The detector for frames of this shape and depth (one of the last used, or new)."""
@@ -168,20 +168,21 @@ class Pipeline:
                                                                     epoch_year=epoch))
         self._solver = None
 
-    def window_detector_for(self, cell: int, cells: int, image: np.ndarray,
+    def window_detector_for(self, cell: int, image: np.ndarray,
                             bit_depth: int) -> WindowDetector:
-        """The window detector for ``cells`` windows of ``cell`` px of frames like ``image``."""
-        key = (cell, cells, image.dtype.str, bit_depth)
+        """The window detector for windows of ``cell`` px of frames like ``image``."""
+        key = (cell, image.dtype.str, bit_depth)
         found = self._window_detectors.pop(key, None)
         if found is None:
-            while len(self._window_detectors) >= WINDOW_DETECTORS_KEPT:
+            while len(self._window_detectors) >= DETECTORS_KEPT:
                 self._window_detectors.popitem(last=False)
             detect_cfg = dataclasses.replace(self.cfg.detect, threads=1,
                                              background_tile_px=cell // 3,
                                              background_step_px=max(1, cell // 24))
             found = WindowDetector(
                 lambda shape: make_detector(detect_cfg, shape, bit_depth), image.shape, cell,
-                cells, self._planner.reach, self.cfg.detect.max_stars, image.dtype)
+                self._planner.capacity, self._planner.reach, self.cfg.detect.max_stars,
+                image.dtype)
         self._window_detectors[key] = found
         return found
 
@@ -253,11 +254,11 @@ class Pipeline:
         if plan is None or image.dtype not in (np.uint8, np.uint16) or image.ndim != 2:
             return None
         t1 = time.perf_counter_ns()
-        detections = self.window_detector_for(plan.cell, len(plan.origins), image,
-                                              bit_depth).detect(image, plan.origins)
+        detections = self.window_detector_for(plan.cell, image, bit_depth).detect(
+            image, plan.origins)
         t2 = time.perf_counter_ns()
         stages = {f"windows.{k}": v for k, v in detections.stages_ms.items()}
-        stages["windows.plan"] = (t1 - t0) / 1e6
+        stages["track.plan"] = (t1 - t0) / 1e6
         stages["windows.gather"] = (t2 - t1) / 1e6 - sum(detections.stages_ms.values())
         stars = self._untrailed(image, detections.stars, t_ns, exposure_s, stages)
         named = prediction.catalogue[:plan.stars]

@@ -33,10 +33,9 @@ from tracker.detect.result import Detections, StarFlag
 from tracker.detect.stars import StarTable
 from tracker.detect.windowed import later_within
 
-__all__ = ["WindowDetector", "MOSAIC_COLUMNS"]
+__all__ = ["WindowDetector"]
 
 _SAME_STAR_PX = 1.0   # detections of one star in two overlapping windows lie closer
-MOSAIC_COLUMNS = 8    # windows a row of the mosaic
 
 
 class WindowDetector:
@@ -49,7 +48,7 @@ class WindowDetector:
 
     def __init__(self, make: Callable[[tuple[int, int]], object], frame_shape: tuple[int, int],
                  cell: int, cells: int, margin: int, max_stars: int, dtype: type,
-                 columns: int = MOSAIC_COLUMNS) -> None:
+                 columns: int = 8) -> None:
         self.cell = int(cell)
         self.cells = int(cells)
         self.columns = min(int(columns), self.cells)

@@ -13,15 +13,14 @@ needing more than ``identify.track_window_max_px`` is searched whole. Sides
 are three background tiles of at least 8 px: the window detector takes
 each window's background from its own 3 x 3 tiles (tracker.pipeline).
 
-A frame gets as many windows as its predicted stars (brightest first) plus
-``identify.track_sweep_windows``, rounded up to a whole row of the mosaic
-(``quantum`` windows; at most ``capacity``): the windows beyond the stars
-sweep the frame, row after row of windows across frames (a star seen in two
-windows is reported once). The sweep finds stars that the catalogue does
-not predict (planets, satellites, a wrong lens). The count moves only with
-the stars in the field, so a frame's mosaic keeps its shape from one frame
-to the next and is made small: its area is the detector's cost. Windows are
-clipped into the frame.
+Every frame gets the same number of windows, ``capacity`` = stars followed
++ ``identify.track_sweep_windows``: the predicted stars' (brightest first),
+and the rest sweep the frame, row after row of windows across frames (a
+star seen in two windows is reported once). The sweep finds stars that
+the catalogue does not predict (planets, satellites, a wrong lens) and
+keeps the cost of a frame fixed: the windows of stars too faint to be
+found (tracker.identify.solver.Solver.prediction leaves them out) sweep
+too. Windows are clipped into the frame.
 """
 
 from __future__ import annotations
@@ -45,7 +44,7 @@ class WindowPlan:
 
     The first ``stars`` are around predicted stars; ``area_px`` is the
     frame area the windows cover (overlaps counted once per window).
-    ``origins`` is a view of the planner's buffer, valid until its next plan.
+    ``origins`` is the planner's buffer, valid until its next plan.
     """
 
     cell: int
@@ -57,17 +56,16 @@ class WindowPlan:
 class WindowPlanner:
     """Plans windows for frames of ``width`` x ``height`` px; keeps the sweep's place.
 
-    At most ``capacity`` windows a frame, in multiples of ``quantum``,
-    ``sweep`` of them at least for the sweep; ``sigmas`` the k above,
-    ``reach_px`` the PSF's reach, ``max_cell_px`` the largest window.
+    ``capacity`` windows a frame, ``sweep`` of them at least for the sweep;
+    ``sigmas`` the k above, ``reach_px`` the PSF's reach, ``max_cell_px``
+    the largest window.
     """
 
     def __init__(self, width: int, height: int, capacity: int, sweep: int, sigmas: float,
-                 reach_px: float, max_cell_px: int, quantum: int = 8) -> None:
+                 reach_px: float, max_cell_px: int) -> None:
         self.width, self.height = int(width), int(height)
         self.capacity = int(capacity)
         self.sweep = int(sweep)
-        self.quantum = max(1, int(quantum))
         self.sigmas = float(sigmas)
         self.reach = float(reach_px)
         self.max_cell = min(int(max_cell_px), self.width, self.height)
@@ -91,17 +89,17 @@ class WindowPlanner:
         if cell is None:
             return None
         n_star = min(len(prediction.xy), self.capacity - self.sweep)
-        count = min(self.capacity, -(-(n_star + self.sweep) // self.quantum) * self.quantum)
-        o = self.origins[:count]
+        o = self.origins
         o[:n_star, 0] = np.clip(np.rint(prediction.xy[:n_star, 0] - 0.5 * (cell - 1)), 0,
                                 self.width - cell)
         o[:n_star, 1] = np.clip(np.rint(prediction.xy[:n_star, 1] - 0.5 * (cell - 1)), 0,
                                 self.height - cell)
-        self._sweep(cell, n_star, count)
-        return WindowPlan(cell=cell, origins=o, stars=n_star, area_px=float(count * cell * cell))
+        self._sweep(cell, n_star)
+        return WindowPlan(cell=cell, origins=o, stars=n_star,
+                          area_px=float(self.capacity * cell * cell))
 
-    def _sweep(self, cell: int, first: int, count: int) -> None:
-        """Fill windows ``first``..``count`` with the sweep's next places (module docstring).
+    def _sweep(self, cell: int, first: int) -> None:
+        """Fill windows ``first``.. with the sweep's next places (module docstring).
 
         The sweep walks a grid of ``cell`` px from the top-left, row after row,
         and starts again at the top after the last row.
@@ -110,8 +108,8 @@ class WindowPlanner:
         down = -(-self.height // cell)
         x, y = self._next
         start = (min(y // cell, down - 1)) * across + min(x // cell, across - 1)
-        steps = (start + np.arange(count - first + 1)) % (across * down)
+        steps = (start + np.arange(self.capacity - first + 1)) % (across * down)
         row, col = np.divmod(steps, across)
-        self.origins[first:count, 0] = np.minimum(col[:-1] * cell, self.width - cell)
-        self.origins[first:count, 1] = np.minimum(row[:-1] * cell, self.height - cell)
+        self.origins[first:, 0] = np.minimum(col[:-1] * cell, self.width - cell)
+        self.origins[first:, 1] = np.minimum(row[:-1] * cell, self.height - cell)
         self._next = (int(col[-1]) * cell, int(row[-1]) * cell)
