@@ -142,7 +142,7 @@ class FakePipeline:
     def reset(self):
         self.resets += 1
 
-    def process(self, image, bit_depth, t_ns, observer=None):
+    def process(self, image, bit_depth, t_ns, observer=None, exposure_s=None):
         self.seen.append(t_ns)
         self.observer = observer
         tag = self.tags.get(t_ns, SOLVED)
@@ -167,6 +167,7 @@ class FakeLink:
         self.snapshots = []            # (clock ns or None, StatusSnapshot)
         self.pending = []              # Commands values handed out one per take
         self.observers = []            # the observer context of each frame sent
+        self.t_refs = []               # the time each frame's latency runs from
         self.clock = clock
 
     def open(self):
@@ -184,10 +185,11 @@ class FakeLink:
     def counts(self):
         return LinkCounts({}, 0, 0)
 
-    def send_frame(self, frame, result, mode, observer):
+    def send_frame(self, frame, result, mode, observer, t_ref_ns=None):
         solved = None if result is None else bool(result.solution.ok)
         self.sent.append((frame.index, mode, solved))
         self.observers.append(observer)
+        self.t_refs.append(t_ref_ns)
 
     def statuses(self):
         return [(t, status_values(s)) for t, s in self.snapshots]

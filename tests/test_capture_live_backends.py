@@ -21,7 +21,7 @@ from fake_rp1_cfe import FakeKernel
 
 from tracker.capture.base import Frame, FrameError, Waiting
 from tracker.capture.imagefile import read_image
-from tracker.capture.live import CameraError
+from tracker.capture.live import FRAME_BUFFERS, CameraError
 from tracker.capture.picamera2_source import Picamera2Source, compatibility_problem
 from tracker.capture.v4l2_source import V4L2Source
 from tracker.config import CaptureConfig
@@ -81,16 +81,20 @@ def test_picamera2_frames_are_bit_exact_with_sensor_metadata(star10):
     t_end = time.monotonic_ns()
     md = {"SensorTimestamp": boot_ns(t_end), "ExposureTime": 20000, "AnalogueGain": 4.0,
           "FrameDuration": 100000}
-    buffers = [r16_buffer(star10 + k, 6) for k in range(3)]
-    source, cam = picamera2_source(["frame"] * 3, buffers, md, raw_shift=6)
+    n = FRAME_BUFFERS + 1
+    buffers = [r16_buffer(star10 + k, 6) for k in range(n)]
+    source, cam = picamera2_source(["frame"] * n, buffers, md, raw_shift=6)
     FakeMappedArray.writes.clear()
     with source:
-        got = frames_of(source, 3)
+        got = frames_of(source, n)
     for k, (_, pixels) in enumerate(got):
         np.testing.assert_array_equal(pixels, star10 + k)
     frames = [f for f, _ in got]
-    assert all(f.image is frames[0].image for f in frames)   # one reused buffer
-    assert FakeMappedArray.writes == [False] * 3                # read-only mapping
+    # a ring of reused buffers: distinct for FRAME_BUFFERS frames, then round again
+    assert len({id(f.image) for f in frames[:FRAME_BUFFERS]}) == FRAME_BUFFERS
+    assert frames[FRAME_BUFFERS].image is frames[0].image
+    np.testing.assert_array_equal(frames[1].image, star10 + 1)   # still valid
+    assert FakeMappedArray.writes == [False] * n                # read-only mapping
     assert cam.free_buffers == 4                                # every request released
     f = frames[0]
     assert (f.bit_depth, f.exposure_us, f.gain) == (10, 20000, 4.0)

@@ -67,6 +67,20 @@ def test_csi2p_converter_ignores_stride_padding_and_reuses_its_buffer():
     assert conv.bit_depth == 10
 
 
+def test_a_ring_of_frames_keeps_each_frame_until_the_ring_comes_round():
+    """With three buffers a frame survives the next two conversions (capture running ahead)."""
+    rng = np.random.default_rng(6)
+    conv = RawConverter(parse_format("R16"), (12, 16), shift=6, buffers=3)
+    images = [rng.integers(0, 1024, (12, 16), dtype=np.uint16) for _ in range(4)]
+    got = [conv.convert((image << 6).astype("<u2").view(np.uint8)) for image in images]
+    assert got[0] is not got[1] and got[1] is not got[2] and got[3] is got[0]
+    for frame, image in zip(got[1:], images[1:], strict=True):
+        np.testing.assert_array_equal(frame, image)
+    with pytest.raises(RawFormatError):
+        conv.convert(np.zeros((12, 8), np.uint8))   # a failed conversion keeps its turn
+    assert conv.frame is got[1]
+
+
 @pytest.mark.parametrize("shift", [0, 6])
 def test_r16_words_are_shifted_into_the_frame(shift):
     """10-bit values stored high (x64, shift 6) or low (shift 0) in 16-bit words."""

@@ -39,7 +39,7 @@ class Pipeline:
     def reset(self):
         self.resets += 1
 
-    def process(self, image, bit_depth, t_ns, observer):
+    def process(self, image, bit_depth, t_ns, observer, exposure_s=None):
         stars = np.zeros(3, STAR_DTYPE)
         stars["x"], stars["flux"] = [1.0, 2.0, 3.0], [30.0, 20.0, 10.0]
         return FrameResult(Detections(stars), Solution(), 1.0, {}, None, observer)
@@ -146,7 +146,7 @@ def test_time_sync_and_set_velocity_reach_the_solver_and_the_fc_sees_tai(fc):
     class Recording(Pipeline):
         observers = []
 
-        def process(self, image, bit_depth, t_ns, observer):
+        def process(self, image, bit_depth, t_ns, observer, exposure_s=None):
             self.observers.append((t_ns, observer))
             return super().process(image, bit_depth, t_ns, observer)
 

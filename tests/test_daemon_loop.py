@@ -1,5 +1,7 @@
 """The frame loop with small fake stages: modes, faults survived and counted, stopping."""
 
+import threading
+
 import pytest
 from daemon_fakes import (
     RAISE,
@@ -263,6 +265,34 @@ def test_slow_frames_keep_the_watchdog_fed(systemd):
     assert daemon.health.processed == 6 and len(pings) > 12
     assert max(_gaps_s(pings)) <= 2.5 + 0.3
     print(f"frames every 6.7 s: largest WATCHDOG=1 gap {max(_gaps_s(pings)):.2f} s")
+
+
+def test_a_camera_stuck_in_its_own_code_keeps_the_watchdog_fed(systemd):
+    """Capture ahead: the loop ticks while the source blocks 60 s without yielding Waiting."""
+    clock, listener = systemd
+    t_start = clock.now_ns()
+    released = threading.Event()
+    clock.before_advance.append(
+        lambda: clock.now_ns() - t_start >= 60 * 10**9 and released.set())
+
+    class StuckCamera(FakeSource):
+        live = True
+
+    def frames():
+        yield frame(0, SOLVED, t_ns=clock.now_ns())
+        released.wait()                       # a driver call that does not return for 60 s
+        for k in range(1, 4):
+            yield frame(k, SOLVED, t_ns=clock.now_ns())
+
+    daemon = Daemon(config(), source_factory=lambda: StuckCamera(frames()),
+                    pipeline=FakePipeline(), link=FakeLink(clock), clock=clock)
+    assert daemon.run() == 0
+    pings = listener.times_of("WATCHDOG=1")
+    assert clock.now_ns() - t_start >= 60 * 10**9
+    assert max(_gaps_s(pings)) <= 2.5 + 0.3 and len(pings) >= 24
+    assert daemon.health.processed >= 2       # frames after it came back (the newest wins)
+    print(f"camera stuck 60 s in its own code: {len(pings)} WATCHDOG=1, largest gap "
+          f"{max(_gaps_s(pings)):.2f} s")
 
 
 def test_no_watchdog_ping_once_the_link_is_dead(systemd):

@@ -2,7 +2,7 @@
 
 The detector's own test (test_detect_memory) shows it allocates nothing per
 frame. Here the daemon runs the real Pipeline (detector, lost in space, then
-tracking) on a realistic simulated 1600 x 1300 frame and sends ATTITUDE,
+tracking in windows) on a realistic simulated 1600 x 1300 frame and sends ATTITUDE,
 CENTROIDS and STATUS through the real link on a pseudo-terminal whose other
 end is drained. The Python memory still held after frame 260 exceeds that
 after frame 60 by a bounded amount: the loop allocates per frame (results,
@@ -10,9 +10,7 @@ packets, snapshots) but keeps none of it.
 """
 
 import dataclasses
-import os
 import threading
-import time
 import tracemalloc
 
 import numpy as np
@@ -50,22 +48,15 @@ def test_the_whole_loop_keeps_nothing_per_frame(tmp_path):
 
     fc = ReplugPty(tmp_path / "fcu")
     stop = threading.Event()
-
-    def drain():
-        while not stop.is_set():
-            try:           # small reads: a 64 KiB buffer in flight would count as held
-                os.read(fc.master, 1024)
-            except (BlockingIOError, OSError):
-                time.sleep(0.002)
-
-    drainer = threading.Thread(target=drain, daemon=True)
+    drainer = threading.Thread(target=fc.drain_until, args=(stop,), daemon=True)
     drainer.start()
     daemon = Daemon(cfg, source_factory=lambda: FakeSource(frames()), pipeline=Pipeline(cfg),
                     link=DaemonLink(cfg), notifier=Notifier(""))
-    held, solved = {}, []
+    held, solved, windowed = {}, [], []
 
     def on_frame(report):
         solved.append(report.solved)
+        windowed.append(any(name.startswith("windows.") for name in report.stages_ms))
         if report.index in (FIRST, LAST):
             held[report.index] = tracemalloc.get_traced_memory()[0]
         if report.index == LAST:
@@ -84,6 +75,7 @@ def test_the_whole_loop_keeps_nothing_per_frame(tmp_path):
     growth = held[LAST] - held[FIRST]
     print(f"Python memory held: {growth / 1024:.1f} KiB more after {LAST - FIRST} frames")
     assert all(solved[FIRST:])
+    assert all(windowed[FIRST:])          # tracked in windows (tracker.identify.windows)
     assert daemon.link.link.stats()["sent_attitude"] > 0
     # 200 frames: 32 KiB is 160 bytes per frame, less than one kept packet (65 bytes
     # of ATTITUDE + the bytes object's 33) plus a list entry per frame would cost.

@@ -30,8 +30,12 @@ def test_run_a_fixed_number_of_frames_with_a_summary(tmp_path):
     summary = json.loads(out.read_text())
     assert code == 0
     assert summary["frames"] == 7 and summary["processed"] == 7
-    assert set(summary["latency_ms"]) == {"p50", "p90", "p99"}
+    assert set(summary["latency_ms"]) == {"p50", "p90", "p99", "max"}
     assert summary["link"]["queued_attitude"] >= 1
+    sent = summary["link"]["sent_attitude"]
+    # every ATTITUDE written has its latency: the frame read to its last byte on the wire
+    assert sent >= 1 and set(summary["wire_latency_ms"]) == {"p50", "p90", "p99", "max"}
+    assert 0 < summary["wire_latency_ms"]["p50"] <= summary["wire_latency_ms"]["max"]
 
 
 def test_missing_replay_frames_is_a_user_error(tmp_path, capsys):
@@ -64,7 +68,7 @@ from tracker.commands.run import build_daemon
 from tracker.config import Config
 
 class Stall:
-    def process(self, image, bit_depth, t_ns, observer):
+    def process(self, image, bit_depth, t_ns, observer, exposure_s=None):
         time.sleep(120)
 
 cfg = Config()

@@ -6,7 +6,7 @@ import numpy as np
 
 from tracker.bench.detect_data import speckle_information
 from tracker.detect.multiplicative import MultiplicativeFit, interval_scores
-from tracker.detect.windowed import _later_within
+from tracker.detect.windowed import later_within
 from tracker.normal import pixel_fractions
 from tracker.sim.seednoise import apply_seed_noise
 
@@ -85,4 +85,4 @@ def test_later_within_matches_brute_force():
         x, y, r = rng.uniform(0, 20, n), rng.uniform(0, 20, n), rng.uniform(0.5, 3.0)
         d = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
         expected = np.array([np.any(d[i, :i] <= r) for i in range(n)], bool)
-        np.testing.assert_array_equal(_later_within(x, y, r), expected)
+        np.testing.assert_array_equal(later_within(x, y, r), expected)

@@ -88,3 +88,15 @@ def test_threads_do_not_change_the_stars():
         results.append(make_detector(cfg, shape, 10).detect(image).stars.copy())
     assert len(results[0]) >= 30
     np.testing.assert_array_equal(results[0], results[1])
+
+
+def test_making_a_detector_sets_opencvs_thread_count():
+    """OpenCV's pool is off by default (the slabs are the parallelism), on when asked."""
+    make_detector(dataclasses.replace(DetectConfig(), opencv_threads=0), (64, 64), 10)
+    everything = cv2.getNumThreads()
+    make_detector(DetectConfig(), (64, 64), 10)
+    assert cv2.getNumThreads() == 1
+    make_detector(dataclasses.replace(DetectConfig(), opencv_threads=3), (64, 64), 10)
+    assert cv2.getNumThreads() == 3
+    make_detector(DetectConfig(), (64, 64), 10)
+    assert everything >= 1

@@ -261,3 +261,24 @@ def test_only_advertised_attitude_flags_are_ever_sent(pty):
                      | corrected]
     assert {f.name for f in AttitudeFlag} == {"VALID", "RATE_VALID", "TIME_SYNCED",
                                               "ANNUAL_ABERRATION", "OBSERVER_VELOCITY"}
+
+
+def test_attitude_ages_from_its_exposure_and_its_latency_is_measured_to_the_wire(pty):
+    """An ATTITUDE older than max_age_ms since its exposure is shed; each one sent gets
+    its latency, from the exposure to its last byte on the wire, at least its age."""
+    master, path = pty
+    cfg = _cfg(path, max_age_ms=200.0)
+    with Link(cfg, Handler()) as link:
+        _open(link)
+        now = time.monotonic_ns()
+        common = {"q": np.array([1.0, 0, 0, 0]), "sigma_cross_arcsec": 2.0,
+                  "sigma_roll_arcsec": 20.0, "matched": 10, "mode": Mode.TRACKING}
+        link.send_attitude(frame_id=1, t_ns=1, t_ref_ns=now - 300_000_000, **common)
+        link.gate.set_rate(MsgId.ATTITUDE, 100.0)
+        link.send_attitude(frame_id=2, t_ns=2, t_ref_ns=now - 50_000_000, **common)
+        got = _collect(master, lambda ps: any(p.values["frame_id"] == 2 for p in ps))
+        link.close(drain_s=0.0)
+        stats = link.stats()
+    assert [p.values["frame_id"] for p in got] == [2]
+    assert stats["dropped_stale_attitude"] == 1 and stats["sent_attitude"] == 1
+    assert link.latency.count == 1 and link.latency.percentiles()["max"] >= 50.0

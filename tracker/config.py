@@ -292,6 +292,11 @@ class DetectConfig:
     threads: int = knob(2, "default: threads sharing the full-frame median and Gaussian "
                         "filters, in horizontal slabs (1 = the calling thread alone; the Pi 5 "
                         "has 4 cores)", "threads", min=1, max=16)
+    opencv_threads: int = knob(1, "threads OpenCV's own parallel loops may use inside each "
+                               "call (cv2.setNumThreads, for the whole process): 1 = none, "
+                               "the slabs above being the detector's parallelism (a pool "
+                               "under each slab competes with them for the cores); 0 = "
+                               "OpenCV's default (every core)", "threads", min=0, max=16)
 
 
 @dataclass(frozen=True)
@@ -355,6 +360,38 @@ class IdentifyConfig:
                                 "from their prediction", "px", min=0.1, max=1000.0)
     track_max_gap_s: float = knob(2.0, "tracking: predict only from a solution this recent",
                                   "s", min=0.0, max=3600.0)
+    rate_valid_sigma_deg_s: float = knob(0.2, "the rate is reported (ATTITUDE RATE_VALID) "
+                                         "only when its 1-sigma is below this on every "
+                                         "axis", "deg/s", min=0.0001, max=100.0)
+    track_windows: bool = knob(True, "tracking with a known rate detects only in windows "
+                               "around the predicted stars, plus a slice of the frame; "
+                               "false: the whole frame every frame")
+    track_window_stars: int = knob(64, "tracking: brightest predicted catalogue stars "
+                                   "given a window", "stars", min=4, max=1024)
+    track_window_mag_margin: float = knob(0.5, "tracking: windows only for predicted stars "
+                                          "at most this much fainter than the faintest "
+                                          "star matched lately (that limit falls by 0.02 "
+                                          "mag a frame at most)", "mag", min=0.0, max=30.0)
+    track_window_unknown: int = knob(4, "tracking: unidentified stars of the last frame "
+                                     "(brightest) followed in windows too", "stars", min=0,
+                                     max=256)
+    track_sweep_windows: int = knob(4, "tracking: fewest windows a frame that sweep the "
+                                    "whole frame in turn (new stars, surprises); windows "
+                                    "not needed by stars sweep too", "windows", min=0,
+                                    max=1024)
+    track_window_sigma: float = knob(3.0, "tracking: window half-width in radial sigmas of "
+                                     "the predicted position (plus half the exposure's "
+                                     "smear and the PSF's reach)", "sigma", min=1.0,
+                                     max=20.0)
+    track_accel_deg_s2: float = knob(2.0, "tracking: angular acceleration (1 sigma per axis) "
+                                     "the prediction allows between frames", "deg/s^2",
+                                     min=0.0, max=1000.0)
+    track_lens_every: int = knob(10, "windowed tracking fits the lens (focal length, k1) on "
+                                 "one frame in this many; the others take the filtered "
+                                 "lens", "frames", min=1, max=100000)
+    track_window_max_px: int = knob(96, "tracking: largest window; a prediction needing "
+                                    "more is searched in the whole frame", "px", min=16,
+                                    max=1024)
 
 
 @dataclass(frozen=True)
@@ -466,6 +503,11 @@ class ServiceConfig:
                             max=100000)
     start_state: str = knob("lost_in_space", "mode at start; standby waits for the flight "
                             "computer's SET_MODE", choices=("standby", "lost_in_space"))
+    capture_ahead: str = knob("live", "capture the next frame in a thread of its own while "
+                              "this one is processed: live (cameras; the newest frame is "
+                              "processed next, one left waiting is superseded), always "
+                              "(replay too, nothing superseded), never (one thread: capture, "
+                              "then process)", choices=("live", "always", "never"))
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,26 @@ converted to grey as replay converts them (tracker.frame_array).
 Identification runs only on frames whose size matches the configured camera,
 since the camera model is what maps pixels to directions.
 
+Windowed tracking (``identify.track_windows``): when the solver has a lock
+and a rate, the frame is detected only in windows around the stars it
+predicts plus a sweeping slice of the frame (tracker.identify.windows,
+tracker.detect.windows) and solved from those; if they do not verify (or
+the prediction is too uncertain for the largest window) the whole frame is
+detected and solved as without a lock. A detector is kept per window size
+(the :data:`DETECTORS_KEPT` last used), each made by ``make_detector`` for
+its mosaic of windows, with one slab thread (a mosaic is too small to cut)
+and background tiles of a third of the window: the star sits in the middle
+tile, whose 3 x 3 median then takes the window's own sky around it.
+A windowed frame's ``stages_ms``: ``track.plan`` (from the frame's start to
+its windows: prediction and planning), ``windows.<stage>`` (the detector's
+stages on the mosaic), ``windows.gather`` (the mosaic and what the
+detector does outside its stages), ``trail``, ``identify.<stage>``.
+
+Trailed stars: with a rate known, stars whose travel over the exposure
+(from the rate: tracker.identify.predict) is long are re-centred by a
+line-spread fit (tracker.detect.trail), whole frame or windows, and
+detections of one trail that end on one centre are merged.
+
 Each frame may come with its :class:`~tracker.astrometry.observer.Observer`
 (absolute time, the observer's velocity), which the solver uses to correct
 aberration. Its time also sets the proper-motion epoch: when it is further
@@ -24,6 +44,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -35,8 +56,13 @@ from tracker.camera import CameraModel
 from tracker.catalogue import Catalogue
 from tracker.config import Config
 from tracker.detect import Detections, Detector, make_detector
+from tracker.detect.default import effective_sigma
+from tracker.detect.trail import TrailFit
+from tracker.detect.windowed import later_within
+from tracker.detect.windows import WindowDetector
 from tracker.frame_array import to_grey
 from tracker.identify import Solution, Solver, make_solver
+from tracker.identify.windows import WindowPlanner
 
 __all__ = ["Pipeline", "FrameResult", "DETECTORS_KEPT"]
 
@@ -53,7 +79,8 @@ class FrameResult:
     ``solution`` is None when identification is off or was not attempted;
     ``solve_reason`` then says why (``"disabled"``, ``"frame_size"``).
     ``observer`` is the context the frame was processed with (what the
-    solver corrected: ``observer.corrections``).
+    solver corrected: ``observer.corrections``). ``windows``: how many
+    windows the frame was detected in (0: the whole frame).
     """
 
     detections: Detections
@@ -62,6 +89,7 @@ class FrameResult:
     stages_ms: dict
     solve_reason: str | None = None
     observer: Observer = Observer()
+    windows: int = 0
 
 
 class Pipeline:
@@ -73,6 +101,14 @@ class Pipeline:
         self._detectors: OrderedDict[tuple, Detector] = OrderedDict()
         self._solver: Solver | None = None
         self._catalogue: Catalogue | None = None
+        self._window_detectors: OrderedDict[tuple, WindowDetector] = OrderedDict()
+        self._trail = TrailFit(effective_sigma(cfg.detect.psf_sigma_px))
+        idf = cfg.identify
+        self._planner = WindowPlanner(
+            self.camera.width, self.camera.height,
+            idf.track_window_stars + idf.track_window_unknown + idf.track_sweep_windows,
+            idf.track_sweep_windows, idf.track_window_sigma,
+            math.ceil(3.0 * effective_sigma(cfg.detect.psf_sigma_px)), idf.track_window_max_px)
 
     def detector_for(self, shape: tuple[int, int], bit_depth: int) -> Detector:
         """The detector for frames of this shape and depth (one of the last used, or new)."""
@@ -132,30 +168,105 @@ class Pipeline:
                                                                     epoch_year=epoch))
         self._solver = None
 
+    def window_detector_for(self, cell: int, image: np.ndarray,
+                            bit_depth: int) -> WindowDetector:
+        """The window detector for windows of ``cell`` px of frames like ``image``."""
+        key = (cell, image.dtype.str, bit_depth)
+        found = self._window_detectors.pop(key, None)
+        if found is None:
+            while len(self._window_detectors) >= DETECTORS_KEPT:
+                self._window_detectors.popitem(last=False)
+            detect_cfg = dataclasses.replace(self.cfg.detect, threads=1,
+                                             background_tile_px=cell // 3,
+                                             background_step_px=max(1, cell // 24))
+            found = WindowDetector(
+                lambda shape: make_detector(detect_cfg, shape, bit_depth), image.shape, cell,
+                self._planner.capacity, self._planner.reach, self.cfg.detect.max_stars,
+                image.dtype)
+        self._window_detectors[key] = found
+        return found
+
     def process(self, image: np.ndarray, bit_depth: int, t_ns: int,
-                observer: Observer | None = None) -> FrameResult:
+                observer: Observer | None = None,
+                exposure_s: float | None = None) -> FrameResult:
         """Detect, identify and solve one frame; never raises on bad pixels.
 
         ``image`` is 2-D (or colour: rows x cols x 3 or 4, BGR(A), made grey
         first), uint8 or uint16 holding ``bit_depth``-bit values; ``t_ns`` the
         exposure mid-point (monotonic clock), used by tracking; ``observer``
         the frame's absolute time and velocity (None: unknown, no aberration
-        corrected).
+        corrected); ``exposure_s`` its exposure time (None: the configured
+        ``capture.exposure_us``), which sizes the windows for the smear.
         """
         observer = observer or Observer()
         t0 = time.perf_counter_ns()
         if isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] in (1, 3, 4):
             image = to_grey(image)
         shape = image.shape[:2] if image.ndim >= 2 else (0, 0)
+        identify = self.cfg.identify.enabled and tuple(shape) == (self.camera.height,
+                                                                  self.camera.width)
+        exposure = self.cfg.capture.exposure_us / 1e6 if exposure_s is None else exposure_s
+        if identify and self.cfg.identify.track_windows:
+            windowed = self._process_windows(image, bit_depth, t_ns, observer, exposure, t0)
+            if windowed is not None:
+                return windowed
         detections = self.detector_for(shape, bit_depth).detect(image)
         stages = {f"detect.{k}": v for k, v in detections.stages_ms.items()}
         solution, reason = None, None
         if not self.cfg.identify.enabled:
             reason = "disabled"
-        elif tuple(shape) != (self.camera.height, self.camera.width):
+        elif not identify:
             reason = "frame_size"
         else:
-            solution = self.solve_stars(detections.stars, t_ns, observer)
+            stars = self._untrailed(image, detections.stars, t_ns, exposure, stages)
+            solution = self.solve_stars(stars, t_ns, observer)
             stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})
         elapsed = (time.perf_counter_ns() - t0) / 1e6
         return FrameResult(detections, solution, elapsed, stages, reason, observer)
+
+    def _untrailed(self, image: np.ndarray, stars: np.ndarray, t_ns: int, exposure_s: float,
+                   stages: dict) -> np.ndarray:
+        """``stars`` with trailed ones re-centred and merged (module docstring), or as given."""
+        if self._solver is None or len(stars) == 0 or image.ndim != 2:
+            return stars
+        xy = np.stack((stars["x"], stars["y"]), axis=1)
+        smear = self._solver.smear_px(xy, t_ns, exposure_s)
+        if smear is None or not np.any(np.hypot(smear[:, 0], smear[:, 1])
+                                       >= self._trail.min_length):
+            return stars
+        t0 = time.perf_counter_ns()
+        fitted = self._trail.refine(image, xy, smear)
+        stars = stars.copy()
+        stars["x"], stars["y"] = fitted[:, 0], fitted[:, 1]
+        stars = stars[~later_within(fitted[:, 0], fitted[:, 1], self._trail.sigma)]
+        stages["trail"] = (time.perf_counter_ns() - t0) / 1e6
+        return stars
+
+    def _process_windows(self, image: np.ndarray, bit_depth: int, t_ns: int,
+                         observer: Observer, exposure_s: float, t0: int) -> FrameResult | None:
+        """The frame tracked in windows (module docstring), or None to search it whole."""
+        if self._solver is None:
+            return None
+        self._follow_epoch(observer)
+        solver = self.solver
+        prediction = solver.prediction(t_ns, exposure_s, observer)
+        plan = None if prediction is None else self._planner.plan(prediction)
+        if plan is None or image.dtype not in (np.uint8, np.uint16) or image.ndim != 2:
+            return None
+        t1 = time.perf_counter_ns()
+        detections = self.window_detector_for(plan.cell, image, bit_depth).detect(
+            image, plan.origins)
+        t2 = time.perf_counter_ns()
+        stages = {f"windows.{k}": v for k, v in detections.stages_ms.items()}
+        stages["track.plan"] = (t1 - t0) / 1e6
+        stages["windows.gather"] = (t2 - t1) / 1e6 - sum(detections.stages_ms.values())
+        stars = self._untrailed(image, detections.stars, t_ns, exposure_s, stages)
+        named = prediction.catalogue[:plan.stars]
+        solution = solver.solve(stars, t_ns, observer, search_area_px=plan.area_px,
+                                predicted=named[named >= 0])
+        if not solution.ok:
+            return None
+        stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})
+        elapsed = (time.perf_counter_ns() - t0) / 1e6
+        return FrameResult(detections, solution, elapsed, stages, None, observer,
+                           windows=len(plan.origins))

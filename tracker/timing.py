@@ -1,10 +1,13 @@
-"""Per-stage wall-clock timing, reported in milliseconds."""
+"""Per-stage wall-clock timing and latency percentiles, reported in milliseconds."""
 
 from __future__ import annotations
 
+import threading
 import time
 
-__all__ = ["StageTimer"]
+import numpy as np
+
+__all__ = ["StageTimer", "LatencyRing"]
 
 
 class StageTimer:
@@ -39,3 +42,37 @@ class StageTimer:
     @property
     def total_ms(self) -> float:
         return sum(self.ms.values())
+
+
+class LatencyRing:
+    """The last ``size`` latencies (ms) in a fixed ring; percentiles and the largest.
+
+    :meth:`add` allocates nothing; one writer thread and readers in other
+    threads may share it (a lock guards the ring).
+    """
+
+    def __init__(self, size: int = 4096) -> None:
+        self._values = np.zeros(int(size), np.float64)
+        self._n = 0
+        self._lock = threading.Lock()
+
+    def add(self, ms: float) -> None:
+        with self._lock:
+            self._values[self._n % len(self._values)] = ms
+            self._n += 1
+
+    @property
+    def count(self) -> int:
+        """Latencies added so far (all of them, not only those still in the ring)."""
+        return self._n
+
+    def percentiles(self, qs=(50, 90, 99)) -> dict:
+        """``{"p50": ms, ...}`` and ``"max"`` over the ring; empty before any value."""
+        with self._lock:
+            n = min(self._n, len(self._values))
+            if not n:
+                return {}
+            values = self._values[:n].copy()
+        out = {f"p{q}": float(v) for q, v in zip(qs, np.percentile(values, qs), strict=True)}
+        out["max"] = float(values.max())
+        return out

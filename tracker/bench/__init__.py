@@ -14,4 +14,6 @@ BENCHES = {
     "solve": "tracker.bench.solve",
     "soak": "tracker.bench.soak",
     "aberration": "tracker.bench.aberration",
+    "track": "tracker.bench.track",
+    "device": "tracker.bench.device",
 }

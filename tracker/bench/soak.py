@@ -20,7 +20,8 @@ At the end the FC asks for STATUS (REQUEST_STATUS) and the bench checks
 that every injected fault is counted by the service and shows in STATUS.
 Reported: resident memory (RSS) over time, frames dropped and why, and the
 end-to-end latency (frame out of the source -> packets queued on the link)
-as percentiles, overall and in tracking mode, with the per-stage split.
+as percentiles, overall and in tracking mode, with the per-stage split, and
+the link's own (frame read -> last byte of its ATTITUDE on the wire).
 """
 
 from __future__ import annotations
@@ -137,11 +138,11 @@ class _FlakyPipeline:
     def reset(self):
         self.inner.reset()
 
-    def process(self, image, bit_depth, t_ns, observer=None):
+    def process(self, image, bit_depth, t_ns, observer=None, exposure_s=None):
         if self.inj.due(self.inj.args.stage_every):
             self.inj.n["stage_raise"] += 1
             raise RuntimeError("injected: stage failure")
-        return self.inner.process(image, bit_depth, t_ns, observer)
+        return self.inner.process(image, bit_depth, t_ns, observer, exposure_s)
 
 
 class _FlightComputer(threading.Thread):
@@ -348,6 +349,8 @@ def _report(args, service, inj, fc, lat, tracking, stage_names, rss, wall, crash
         "link": link, "fc_decoded": fc.counts, "final_status": status,
         "latency_ms": _percentiles(lat[valid]),
         "latency_tracking_ms": _percentiles(lat[valid & tracking]),
+        "wire_latency_ms": dict(service.link.wire_latency_ms(),
+                                n=service.link.link.latency.count),
         "stage_median_ms": split,
         "rss_mib": [(k, b / 2**20) for k, b in rss],
         "rss_growth_mib": (rss[-1][1] - warm) / 2**20,
@@ -374,7 +377,10 @@ def _markdown(r: dict) -> str:
               f"crash: {r['crash'] or 'none'}", "",
               "## Latency (frame out of the source -> packets queued)", "",
               f"- all frames: {_fmt(r['latency_ms'])}",
-              f"- tracking mode: {_fmt(r['latency_tracking_ms'])}", "",
+              f"- tracking mode: {_fmt(r['latency_tracking_ms'])}",
+              f"- the frame read -> the last byte of its ATTITUDE on the wire (the replayed "
+              f"frames have no exposure time; at most link.max_age_ms by the stale rule): "
+              f"{_fmt(r['wire_latency_ms'])}", "",
               "Median per stage (tracking frames if any, else all), ms:", "",
               "| stage | ms |", "|---|---|"]
     lines += [f"| {k} | {v:.3f} |" for k, v in r["stage_median_ms"].items()]

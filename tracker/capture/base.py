@@ -29,8 +29,9 @@ class Frame:
     ``image`` is 2-D, uint8 (8-bit) or uint16 holding ``bit_depth``-bit
     values. ``t_ns`` is the exposure mid-point on the monotonic clock (for
     replay: the record's ``t_ns``, else when the frame was read). Live
-    backends may hand out a view of a reused buffer, valid until the next
-    frame is requested.
+    backends hand out one of a ring of reused buffers: the image is
+    overwritten when the source is asked for the frame ``frame_buffers``
+    after it (a source without that attribute never reuses an image).
 
     ``t_tai_ns`` is the exposure mid-point as an absolute time (TAI ns since
     1970, tracker.astrometry.timescale) when the frame's own record gives
@@ -75,7 +76,12 @@ class Waiting:
 
 
 class FrameSource(Protocol):
-    """Anything that yields frames: replay files, picamera2, V4L2."""
+    """Anything that yields frames: replay files, picamera2, V4L2.
+
+    Optional attributes: ``live`` (True: a running camera that does not wait
+    for its consumer; default False) and ``frame_buffers`` (the ring of
+    images a live source reuses; default: none reused).
+    """
 
     def __iter__(self) -> Iterator[Frame | FrameError | Waiting]: ...
 

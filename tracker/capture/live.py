@@ -11,6 +11,12 @@ systemd's watchdog at any frame rate. A frame is late (``FrameError`` with
 ``capture.timeout_s``. Live sources also offer ``set_controls(exposure_us,
 gain)``.
 
+Frames: a live source writes its frames into a ring of :data:`FRAME_BUFFERS`
+preallocated images (tracker.capture.rawformat.RawConverter); a frame's
+image is overwritten when the source is asked for the frame
+``FRAME_BUFFERS`` after it. ``live`` and ``frame_buffers`` on the source
+tell its consumer so (tracker.daemon.capture_ahead).
+
 Times: ``Frame.t_ns`` is the exposure mid-point on CLOCK_MONOTONIC.
 libcamera stamps frames on CLOCK_BOOTTIME; :func:`boottime_to_monotonic`
 converts (the two clocks differ by the time spent suspended).
@@ -20,13 +26,15 @@ from __future__ import annotations
 
 import time
 
-__all__ = ["CameraError", "TIMEOUT_REASON", "WAIT_SLICE_S", "LiveSource",
+__all__ = ["CameraError", "TIMEOUT_REASON", "WAIT_SLICE_S", "FRAME_BUFFERS", "LiveSource",
            "boottime_to_monotonic", "frame_deadline_s"]
 
 # FrameError.reason of a frame that did not arrive in time starts with this.
 TIMEOUT_REASON = "no frame within"
 # Longest a live source blocks before it yields Waiting.
 WAIT_SLICE_S = 0.25
+# Frames a live source keeps valid at once: one processed, one waiting, one being captured.
+FRAME_BUFFERS = 3
 
 
 class CameraError(RuntimeError):
@@ -34,7 +42,14 @@ class CameraError(RuntimeError):
 
 
 class LiveSource:
-    """Context-manager part of the FrameSource protocol for the live backends."""
+    """Context-manager part of the FrameSource protocol for the live backends.
+
+    ``live``: frames come from a running camera, which does not wait for its
+    consumer; ``frame_buffers``: the ring of images frames are written into.
+    """
+
+    live = True
+    frame_buffers = FRAME_BUFFERS
 
     def close(self) -> None:
         raise NotImplementedError

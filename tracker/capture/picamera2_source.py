@@ -29,9 +29,10 @@ any failure after it was acquired.
 
 A request is read through ``MappedArray(..., write=False)`` (a read-only
 view of the camera's dmabuf, no copy); :class:`~tracker.capture.rawformat.
-RawConverter` copies or unpacks it into one preallocated frame, and the
-request is released at once. The yielded ``Frame.image`` is that buffer,
-overwritten by the next frame.
+RawConverter` copies or unpacks it into the next of a ring of
+preallocated frames, and the request is released at once. The yielded
+``Frame.image`` is that buffer, overwritten by the frame
+:data:`~tracker.capture.live.FRAME_BUFFERS` later.
 
 The granted raw format is checked at start: the Pi 5's lossy
 ``*_PISP_COMP*`` formats are refused, as is a size other than the camera
@@ -51,6 +52,7 @@ from collections.abc import Iterator
 
 from tracker.capture.base import Frame, FrameError, Waiting
 from tracker.capture.live import (
+    FRAME_BUFFERS,
     TIMEOUT_REASON,
     WAIT_SLICE_S,
     CameraError,
@@ -205,7 +207,7 @@ class Picamera2Source(LiveSource):
             if size != (cols, rows):
                 raise RawFormatError(f"camera granted a {size} raw stream, expected "
                                      f"{(cols, rows)} (camera.width, camera.height)")
-            self._conv = RawConverter(fmt, self.shape, self.cfg.raw_shift)
+            self._conv = RawConverter(fmt, self.shape, self.cfg.raw_shift, FRAME_BUFFERS)
             cam.start()
         except Exception as exc:      # whatever failed, the camera is released again
             try:

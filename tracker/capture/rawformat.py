@@ -2,7 +2,9 @@
 
 Pure numpy, no hardware: the live backends (picamera2, V4L2) hand a mapped
 camera buffer of shape (rows, stride) uint8 to :class:`RawConverter`, which
-writes the pixels into one preallocated 2-D frame without allocating.
+writes the pixels into a ring of preallocated 2-D frames without allocating
+(a frame stays valid while the ring's other frames are written, so capture
+can run ahead of processing: tracker.daemon.capture_ahead).
 
 Formats (libcamera / picamera2 names):
 
@@ -89,14 +91,17 @@ def unpack_raw10(packed: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> np.nda
 
 
 class RawConverter:
-    """Copies one camera buffer of a given format into a preallocated frame.
+    """Copies camera buffers of a given format into a ring of preallocated frames.
 
     ``shape`` is (rows, width). ``shift`` right-shifts 16-bit words (e.g. 6
     for 10-bit data stored in the high bits of ``R16``). ``bit_depth`` is the
-    depth of the values written, which travels with the frame.
+    depth of the values written, which travels with the frame. Each
+    successful :meth:`convert` writes the next of ``buffers`` frames in turn,
+    so a frame is overwritten by the conversion ``buffers`` later.
     """
 
-    def __init__(self, fmt: RawFormat, shape: tuple[int, int], shift: int = 0):
+    def __init__(self, fmt: RawFormat, shape: tuple[int, int], shift: int = 0,
+                 buffers: int = 1):
         rows, width = shape
         if fmt.packed and width % 4:
             raise RawFormatError(f"packed 10-bit rows need a width divisible by 4, got {width}")
@@ -110,32 +115,43 @@ class RawConverter:
         else:
             self.bit_depth = fmt.bit_depth
         dtype = np.uint8 if fmt.bit_depth == 8 else np.uint16
-        self.frame = np.zeros(self.shape, dtype)
+        self.frames = [np.zeros(self.shape, dtype) for _ in range(max(1, int(buffers)))]
+        self._next = 0
         self._tmp = np.zeros((rows, width // 4), np.uint16) if fmt.packed else None
 
-    def convert(self, buf: np.ndarray) -> np.ndarray:
-        """Write ``buf`` ((rows, stride) uint8, or an already typed 2-D array) into the frame.
+    @property
+    def frame(self) -> np.ndarray:
+        """The frame the next :meth:`convert` writes."""
+        return self.frames[self._next]
 
-        Raises RawFormatError if the buffer is too small for the frame.
-        Returns the frame (the same array every call).
+    def convert(self, buf: np.ndarray) -> np.ndarray:
+        """Write ``buf`` ((rows, stride) uint8, or an already typed 2-D array) into a frame.
+
+        Raises RawFormatError if the buffer is too small for the frame (the
+        ring does not move on). Returns the frame written, the next of the
+        ring's arrays.
         """
         rows, width = self.shape
         if buf.dtype != np.uint8:   # e.g. OpenCV's 16UC1 Mat: already one word per pixel
             if buf.shape[:2] != self.shape:
                 raise RawFormatError(f"buffer is {buf.shape[1]}x{buf.shape[0]}, "
                                      f"expected {width}x{rows}")
-            return self._store(buf)
+            return self._advance(self._store(buf))
         need = self.fmt.row_bytes(width)
         if buf.ndim != 2 or buf.shape[0] < rows or buf.shape[1] < need:
             raise RawFormatError(f"buffer of shape {buf.shape} is too small for {width}x{rows} "
                                  f"{self.fmt.name} ({need} bytes per row)")
         if self.fmt.packed:
-            return unpack_raw10(buf[:rows], self.frame, self._tmp)
+            return self._advance(unpack_raw10(buf[:rows], self.frame, self._tmp))
         if self.fmt.bit_depth == 8:
             np.copyto(self.frame, buf[:rows, :width])
-            return self.frame
+            return self._advance(self.frame)
         words = buf[:rows, : 2 * width].view("<u2")
-        return self._store(words)
+        return self._advance(self._store(words))
+
+    def _advance(self, written: np.ndarray) -> np.ndarray:
+        self._next = (self._next + 1) % len(self.frames)
+        return written
 
     def _store(self, words: np.ndarray) -> np.ndarray:
         if self.shift:

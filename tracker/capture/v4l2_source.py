@@ -5,9 +5,11 @@ At open the rp1-cfe media graph is linked and every pad's format set
 streams into ``capture.buffer_count`` memory-mapped buffers. Each frame is
 dequeued when ready (waits cut into slices of
 :data:`~tracker.capture.live.WAIT_SLICE_S`, yielding
-:class:`~tracker.capture.base.Waiting`), converted into one preallocated
-frame (:class:`~tracker.capture.rawformat.RawConverter`: Y10P unpacked,
-Y16 shifted by ``capture.raw_shift``, GREY copied) and queued again at once.
+:class:`~tracker.capture.base.Waiting`), converted into the next of a ring
+of preallocated frames (:class:`~tracker.capture.rawformat.RawConverter`:
+Y10P unpacked, Y16 shifted by ``capture.raw_shift``, GREY copied; a frame is
+overwritten :data:`~tracker.capture.live.FRAME_BUFFERS` frames later) and
+queued again at once.
 A buffer the driver flags as an error becomes a ``FrameError``; a frame later
 than its period plus ``capture.timeout_s`` too, and three late in a row raise
 ``CameraError``.
@@ -42,6 +44,7 @@ import numpy as np
 from tracker.capture import v4l2_abi as abi
 from tracker.capture.base import Frame, FrameError, Waiting
 from tracker.capture.live import (
+    FRAME_BUFFERS,
     TIMEOUT_REASON,
     WAIT_SLICE_S,
     CameraError,
@@ -189,7 +192,8 @@ class V4L2Source(LiveSource):
         cfg = self.cfg
         pipe = self.pipeline = find_pipeline(self.io, cfg.device, cfg.raw_format, self.shape)
         self.granted = pipe.describe()
-        self._conv = RawConverter(parse_format(pipe.fmt.raw_format), self.shape, cfg.raw_shift)
+        self._conv = RawConverter(parse_format(pipe.fmt.raw_format), self.shape, cfg.raw_shift,
+                                  FRAME_BUFFERS)
         sensor = self._open_fd(pipe.sensor_subdev)
         self.controls = SensorControls(self.io, sensor, pipe.height, pipe.width,
                                        cfg.gain_code_per_x)

@@ -9,7 +9,10 @@ demo's::
     tracker run --replay FRAMES/ --loop --frames 300 --port /dev/pts/5 --summary -
 
 With ``--summary FILE`` (``-`` = stdout) a JSON object is written at the end:
-frames, solved, faults, latency percentiles (ms) and the link's counters.
+frames, solved, faults, latency percentiles (ms: the frame out of the source to its
+packets queued), ``wire_latency_ms`` (a live frame's exposure mid-point, a replayed
+one's reading, to the last byte of its ATTITUDE on the wire), frames superseded
+(tracker.daemon.capture_ahead) and the link's counters.
 
 Exit status: 0 after SIGTERM/SIGINT or the last replayed frame; 1 when the
 serial link's threads died (systemd restarts the unit); 2 for a
@@ -93,6 +96,9 @@ def summary(daemon: Daemon) -> dict:
         "solve_rate": round(h.solved / h.processed, 4) if h.processed else 0.0,
         "faults": h.fault_counts(),
         "latency_ms": {k: round(v, 3) for k, v in h.latency_percentiles().items()},
+        "wire_latency_ms": ({k: round(v, 3) for k, v in link.latency.percentiles().items()}
+                            if link is not None else {}),
+        "superseded": h.superseded,
         "link": link.stats() if link is not None else {},
     }
 

@@ -13,9 +13,8 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-import numpy as np
-
 from tracker.protocol.messages import ErrorCode
+from tracker.timing import LatencyRing
 
 __all__ = ["Health", "FRAME_LOSSES"]
 
@@ -35,14 +34,14 @@ class Health:
         self.last_error = ErrorCode.NONE
         self.last_error_text = ""
         self.frames = 0            # frames received from the source (good or not)
+        self.superseded = 0        # live frames a newer one replaced before processing
         self.processed = 0         # frames through the pipeline
         self.solved = 0
         self.solve_failures = 0    # frames with stars but no attitude
         self.frame_rate_hz = 0.0
         self._rate_t_ns = self.started_ns
         self._rate_n = 0
-        self._lat = np.zeros(ring, np.float64)
-        self._lat_n = 0
+        self.latency = LatencyRing(ring)
 
     def fault(self, code: ErrorCode, text: str = "", count: int = 1) -> None:
         """Count ``count`` occurrences of a fault; it becomes the last error."""
@@ -57,8 +56,7 @@ class Health:
 
     def frame_done(self, latency_ms: float) -> None:
         """Record one processed frame's end-to-end latency."""
-        self._lat[self._lat_n % len(self._lat)] = latency_ms
-        self._lat_n += 1
+        self.latency.add(latency_ms)
         self._rate_n += 1
         self.tick()
 
@@ -70,12 +68,9 @@ class Health:
             self._rate_t_ns, self._rate_n = now, 0
 
     def latency_percentiles(self, qs=(50, 90, 99)) -> dict:
-        """Latency percentiles (ms) over the last ``ring`` frames; empty before any."""
-        n = min(self._lat_n, len(self._lat))
-        if not n:
-            return {}
-        values = np.percentile(self._lat[:n], qs)
-        return {f"p{q}": float(v) for q, v in zip(qs, values, strict=True)}
+        """Latency percentiles (ms) over the last ``ring`` frames, and ``max``; empty before
+        any."""
+        return self.latency.percentiles(qs)
 
     def fault_counts(self) -> dict[str, int]:
         """The faults seen so far, by lower-case ErrorCode name (reports, JSON)."""
@@ -91,5 +86,6 @@ class Health:
         lat = self.latency_percentiles((50,))
         lat_text = f", latency p50 {lat['p50']:.1f} ms" if lat else ""
         last = f"; last: {self.last_error_text}" if self.last_error else ""
-        return (f"{mode}: {self.processed} frames, {self.solved} solved, "
+        skipped = f", {self.superseded} superseded" if self.superseded else ""
+        return (f"{mode}: {self.processed} frames, {self.solved} solved{skipped}, "
                 f"{self.frame_rate_hz:.1f} fps{lat_text}; faults: {faults or 'none'}{last}")

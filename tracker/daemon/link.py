@@ -119,14 +119,21 @@ class DaemonLink:
         self._status = snapshot
         self.link.send_status(**status_values(snapshot))
 
+    def wire_latency_ms(self) -> dict:
+        """Exposure mid-point to ATTITUDE's last byte on the wire, ms: percentiles and max."""
+        return self.link.latency.percentiles()
+
     def counts(self) -> LinkCounts:
         return LinkCounts(self.link.stats(), self.link.rx_rejects, self.link.drops)
 
-    def send_frame(self, frame: Frame, result, mode: Mode, observer: Observer) -> None:
+    def send_frame(self, frame: Frame, result, mode: Mode, observer: Observer,
+                   t_ref_ns: int | None = None) -> None:
         """ATTITUDE (and CENTROIDS when due) for one frame seen in ``observer``'s context.
 
         ``result`` is the pipeline's FrameResult, or None for a frame taken
         but not processed (STANDBY): ATTITUDE then has VALID clear.
+        ``t_ref_ns``: the frame's exposure mid-point on the monotonic clock,
+        from which ATTITUDE's age and latency run (tracker.protocol.link).
         """
         sol = None if result is None else result.solution
         ok = bool(sol is not None and sol.ok)
@@ -143,7 +150,8 @@ class DaemonLink:
             sigma_cross_arcsec=float(sol.sigma_cross_arcsec) if ok else math.nan,
             sigma_roll_arcsec=float(sol.sigma_roll_arcsec) if ok else math.nan,
             matched=int(sol.matched) if ok else 0, mode=mode,
-            flags=int(flags), rate_dps=np.degrees(rate) if rate is not None else None)
+            flags=int(flags), rate_dps=np.degrees(rate) if rate is not None else None,
+            t_ref_ns=t_ref_ns)
         if result is None or self.link.gate.rates_hz.get(MsgId.CENTROIDS, 0) <= 0:
             return
         stars = result.detections.stars

@@ -1,15 +1,22 @@
 """The frame loop: capture -> detect -> identify -> attitude -> link, at the camera's rate.
 
-One thread runs :meth:`Daemon.run`; nothing else touches the stages.
+One thread runs :meth:`Daemon.run`; nothing else touches the stages. With a
+live camera (``service.capture_ahead``) a second thread captures frame N+1
+while the loop processes frame N (:mod:`tracker.daemon.capture_ahead`): the
+loop starts each frame on the newest one captured, so a frame costs the
+longer of its capture and its processing and waits for at most one frame's
+processing before its own.
 
 1. Publish a first STATUS (so an early REQUEST_STATUS is answered), open
    the link (a port that fails is retried by the link itself).
 2. Open the frame source. While it fails, wait ``service.retry_initial_s``
    doubling up to ``service.retry_max_s`` between attempts, mode FAULT.
-3. Take items from the source. Every item (a frame, a lost frame, or
-   :class:`~tracker.capture.base.Waiting` from a live source that has no
-   frame yet) first runs a *tick*; a frame then runs the *processing step*.
-   Backoff waits are cut into ticks of at most
+3. Take items from the source (or from the capture thread, which returns
+   Waiting after every :data:`~tracker.capture.live.WAIT_SLICE_S` without
+   one, even when the source is stuck in its own code). Every item (a
+   frame, a lost frame, or :class:`~tracker.capture.base.Waiting` from a
+   live source that has no frame yet) first runs a *tick*; a frame then
+   runs the *processing step*. Backoff waits are cut into ticks of at most
    :data:`~tracker.capture.live.WAIT_SLICE_S` as well.
 4. ``READY=1`` goes to systemd after the first frame, or after the first
    failed attempt to open the camera (the unit is then up, in FAULT,
@@ -31,8 +38,14 @@ which TIME_SYNC and SET_VELOCITY feed); in STANDBY send ATTITUDE with VALID
 clear; otherwise run the pipeline, update the mode
 (:mod:`tracker.daemon.modes`) and the exposure, and send ATTITUDE and
 CENTROIDS (the link applies their output rates). Capture and processing are
-separate steps so that they can overlap (capture of frame N+1 while N is
-processed) without changing either.
+separate steps, which is what lets them overlap without changing either.
+
+Latency: ``FrameReport.latency_ms`` runs from the frame leaving the source
+to its packets handed to the link; the link measures the whole of it, from
+a live frame's exposure mid-point (a replayed frame's reading) to the last
+byte of its ATTITUDE on the wire, and drops an ATTITUDE that would go out
+more than ``link.max_age_ms`` after that (tracker.protocol.link), which
+bounds it.
 
 Faults survived, each counted in :class:`~tracker.daemon.health.Health`
 under its ErrorCode and so in STATUS: an unreadable frame (skipped), a late
@@ -67,6 +80,7 @@ from tracker.board import cpu_temperature_c
 from tracker.capture.base import Frame, FrameError, Waiting
 from tracker.capture.live import TIMEOUT_REASON, WAIT_SLICE_S
 from tracker.config import Config, config_checksum
+from tracker.daemon.capture_ahead import CaptureAhead
 from tracker.daemon.clock import Clock
 from tracker.daemon.commands import Commands
 from tracker.daemon.exposure import ExposureControl
@@ -86,6 +100,8 @@ log = logging.getLogger(__name__)
 EXIT_LINK_FAILED = 1
 # Log at most this many tracebacks of one fault kind; later ones only count.
 _LOGGED_PER_FAULT = 5
+# Longest wait, when a source closes, for the capture thread to leave the source's code.
+_CAPTURE_JOIN_S = 2.0
 _SECOND_NS = 1_000_000_000
 
 
@@ -109,8 +125,8 @@ class Daemon:
     """The loop of the module docstring, with every stage injected.
 
     ``source_factory()`` returns a new FrameSource (called again after the
-    source fails); ``pipeline.process(image, bit_depth, t_ns, observer)``
-    returns a :class:`~tracker.pipeline.FrameResult` and ``pipeline.reset()``
+    source fails); ``pipeline.process(image, bit_depth, t_ns, observer,
+    exposure_s)`` returns a :class:`~tracker.pipeline.FrameResult` and ``pipeline.reset()``
     forgets the tracking lock; ``link`` is a
     :class:`~tracker.daemon.link.DaemonLink` or anything with its methods.
     ``clock`` (tests: a virtual one) times every wait; ``timebase`` (tests)
@@ -140,6 +156,7 @@ class Daemon:
         self._stop = threading.Event()
         self._finished = False
         self._source = None
+        self._live = False
         self._ready = False
         self._sensor: tuple[float | None, float | None] = (None, None)   # exposure, gain
         self._observer: Observer | None = None      # the latest frame's
@@ -228,11 +245,14 @@ class Daemon:
             self._fault(ErrorCode.CAMERA_LOST, f"{type(exc).__name__}: {exc}", exc)
             return False
         self._source = source
+        self._live = bool(getattr(source, "live", False))
+        ahead = self._capture_ahead(source, items)
+        take = (lambda: next(items, None)) if ahead is None else ahead.take
         got_frame = False
         try:
             while not self._done():
                 t0 = self.clock.now_ns()
-                item = self.capture(items)
+                item = self.capture(take)
                 if item is None:
                     break
                 got_frame = got_frame or isinstance(item, Frame)
@@ -240,10 +260,17 @@ class Daemon:
                 if self._stop.is_set():
                     break
                 if not isinstance(item, Waiting):
-                    self.process(item, t0)
+                    try:
+                        self.process(item, t0)
+                    finally:
+                        if ahead is not None:
+                            ahead.release()
+                            self.health.superseded = ahead.superseded
                 if self.scfg.frames and self.health.frames >= self.scfg.frames:
                     self._finished = True
         finally:
+            if ahead is not None:
+                self._stop_capture(ahead)
             self._source = None
             try:
                 source.close()
@@ -251,10 +278,31 @@ class Daemon:
                 log.warning("closing the source failed: %s", exc)
         return got_frame
 
-    def capture(self, items: Iterator) -> Frame | FrameError | Waiting | None:
+    def _capture_ahead(self, source, items: Iterator) -> CaptureAhead | None:
+        """The capture thread for this source, or None (``service.capture_ahead``)."""
+        policy = self.scfg.capture_ahead
+        if policy == "never" or (policy == "live" and not self._live):
+            return None
+        return CaptureAhead(items, live=self._live, frame_buffers=getattr(source, "frame_buffers",
+                                                                     None),
+                            wait=self.clock.wait, slice_s=WAIT_SLICE_S).start()
+
+    def _stop_capture(self, ahead: CaptureAhead) -> None:
+        """End the capture thread, ticking meanwhile; a source hung in its own code is
+        left behind after :data:`_CAPTURE_JOIN_S` (closing it usually frees it)."""
+        ahead.stop()
+        waited = 0.0
+        while not ahead.join(WAIT_SLICE_S) and waited < _CAPTURE_JOIN_S:
+            waited += WAIT_SLICE_S
+            self._tick()
+        if waited >= _CAPTURE_JOIN_S:
+            log.warning("the capture thread did not stop within %g s; closing the source "
+                        "under it", _CAPTURE_JOIN_S)
+
+    def capture(self, take: Callable[[], object]) -> Frame | FrameError | Waiting | None:
         """The capture step: the source's next item; None when it ended or failed."""
         try:
-            item = next(items, None)
+            item = take()
         except Exception as exc:
             self._fault(ErrorCode.CAMERA_LOST, f"{type(exc).__name__}: {exc}", exc)
             return None
@@ -276,16 +324,20 @@ class Daemon:
             self._mark_ready(f"first frame {item.name}")
         self._sensor = (item.exposure_us, item.gain)
         observer = self._observer = self.timebase.observer_for(item)
+        # a live frame's latency runs from its exposure; a replayed one's from its reading
+        t_ref = item.t_ns if self._live else t_avail
         if not self.modes.processing:
             self.modes.frame_ok()
-            self.link.send_frame(item, None, self.mode, observer)
+            self.link.send_frame(item, None, self.mode, observer, t_ref)
             return
-        self._solve(item, observer, t_avail, (t_avail - t0_ns) / 1e6)
+        self._solve(item, observer, t_avail, (t_avail - t0_ns) / 1e6, t_ref)
 
-    def _solve(self, frame: Frame, observer: Observer, t_avail: int, capture_ms: float
-               ) -> None:
+    def _solve(self, frame: Frame, observer: Observer, t_avail: int, capture_ms: float,
+               t_ref: int) -> None:
         try:
-            result = self.pipeline.process(frame.image, frame.bit_depth, frame.t_ns, observer)
+            exposure_s = None if frame.exposure_us is None else frame.exposure_us / 1e6
+            result = self.pipeline.process(frame.image, frame.bit_depth, frame.t_ns, observer,
+                                           exposure_s)
         except Exception as exc:    # a stage that raises loses this frame only
             self._fault(ErrorCode.STAGE_ERROR, f"{frame.name}: {type(exc).__name__}: {exc}",
                         exc)
@@ -305,7 +357,7 @@ class Daemon:
         if self.exposure.update(result.detections, frame.bit_depth):
             self._apply_exposure()
         t_ctl = self.clock.now_ns()
-        self.link.send_frame(frame, result, self.mode, observer)
+        self.link.send_frame(frame, result, self.mode, observer, t_ref)
         t_end = self.clock.now_ns()
         latency = (t_end - t_avail) / 1e6
         self.health.processed += 1

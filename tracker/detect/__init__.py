@@ -25,6 +25,7 @@ import numpy as np
 
 from tracker.config import DetectConfig
 from tracker.detect.result import STAR_DTYPE, Detections, StarFlag
+from tracker.detect.slabs import set_opencv_threads
 
 __all__ = ["Detector", "make_detector", "METHODS", "Detections", "STAR_DTYPE", "StarFlag"]
 
@@ -46,6 +47,10 @@ class Detector(Protocol):
 
 
 def make_detector(cfg: DetectConfig, shape: tuple[int, int], bit_depth: int) -> Detector:
-    """The detector named by ``cfg.method`` for frames of ``shape`` (rows, cols)."""
+    """The detector named by ``cfg.method`` for frames of ``shape`` (rows, cols).
+
+    Sets OpenCV's thread count for the process (``cfg.opencv_threads``).
+    """
+    set_opencv_threads(cfg.opencv_threads)
     module, cls = METHODS[cfg.method].split(":")
     return getattr(importlib.import_module(module), cls)(cfg, tuple(shape), bit_depth)

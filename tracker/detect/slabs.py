@@ -20,9 +20,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
+import cv2
 import numpy as np
 
-__all__ = ["SlabRunner"]
+__all__ = ["SlabRunner", "set_opencv_threads"]
+
+
+def set_opencv_threads(threads: int) -> None:
+    """OpenCV's threads per call for the process: ``threads`` (1 = in the calling thread
+    alone), or 0 for OpenCV's default (every core)."""
+    cv2.setNumThreads(-1 if threads == 0 else int(threads))
 
 
 class SlabRunner:

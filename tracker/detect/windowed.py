@@ -41,7 +41,7 @@ import numpy as np
 from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.multiplicative import MultiplicativeFit
 
-__all__ = ["WindowedCentroider", "second_moments"]
+__all__ = ["WindowedCentroider", "later_within", "second_moments"]
 
 # The fit (tracker.detect.fit) refines stars at least this significant: fainter ones are
 # background-limited, where the windowed centroid is the maximum-likelihood centre and
@@ -207,7 +207,7 @@ class WindowedCentroider:
         self.v["x0"][:n][ok] = x[ok]
         self.v["y0"][:n][ok] = y[ok]
         centre = cand[:n]
-        return _later_within(centre % self.stride + self.v["x0"][:n],
+        return later_within(centre % self.stride + self.v["x0"][:n],
                              centre // self.stride + self.v["y0"][:n], merge_px)
 
     @staticmethod
@@ -325,7 +325,7 @@ def second_moments(ws: np.ndarray, ex: np.ndarray, ey: np.ndarray, scratch: np.n
         np.divide(out[key], denom, out=out[key])
 
 
-def _later_within(x: np.ndarray, y: np.ndarray, radius: float) -> np.ndarray:
+def later_within(x: np.ndarray, y: np.ndarray, radius: float) -> np.ndarray:
     """Mask of points within ``radius`` of an earlier point in the arrays' order.
 
     Sorted by x, each point is compared only with those within ``radius`` in x.

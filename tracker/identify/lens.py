@@ -180,6 +180,7 @@ class LensFilter:
         self._vector = np.zeros(2)
         self._frames = 0
         self._last_t: int | None = None
+        self._state: LensState | None = None   # state() until the next update
 
     def update(self, fit: FrameFit, t_ns: int) -> None:
         """Add one frame's information, older frames fading with the time constant."""
@@ -192,8 +193,15 @@ class LensFilter:
         self._info = self._info + fit.info
         self._vector = self._vector + fit.info_vector
         self._frames += 1
+        self._state = None
 
     def state(self) -> LensState:
+        """The estimate after the last update (computed once per update)."""
+        if self._state is None:
+            self._state = self._estimate()
+        return self._state
+
+    def _estimate(self) -> LensState:
         P = self.prior.information
         cov = np.linalg.inv(P + self._info)
         x = cov @ (P @ self.prior.mean + self._vector)

@@ -78,6 +78,7 @@ from tracker.detect.result import StarFlag
 from tracker.identify.database import BoundDatabase
 from tracker.identify.lens import LensFilter, LensPrior, LensState, fit_frame
 from tracker.identify.lost import Hypothesis, PatternSearch, WorkBudget
+from tracker.identify.predict import TrackPrediction, pixel_jacobian, predict_positions
 from tracker.identify.verify import Projector, false_match_probability, match_nearest
 from tracker.timing import StageTimer
 
@@ -86,6 +87,10 @@ __all__ = ["Solution", "Solver", "LensReport"]
 _ARCSEC = math.degrees(1.0) * 3600.0
 _PRIOR_DOF = 3.0
 _FIRST_PASS_PX = 3.0
+_CONE_REUSE_RAD = math.radians(0.5)   # tracking's catalogue cone: 0.5 deg wider, reused
+# the faintest magnitude tracking expects to see falls by at most this a frame: a star
+# at the detection limit, seen in one frame in two, keeps the windows' count steady
+_FAINTEST_DECAY_MAG = 0.02
 
 
 @dataclass(frozen=True)
@@ -120,11 +125,14 @@ class Solution:
     attitude_covariance); ``residual_arcsec`` the RMS fit residual per star.
     ``hip`` has one entry per input star (0 = unidentified). ``rate_rad_s`` is
     the body angular velocity in the camera frame from the last two solutions
-    (None if unknown, or if they are further apart than ``track_max_gap_s``:
-    a rate averaged over a long gap is not a rate). ``prob_false`` is the
+    (None if unknown, if they are further apart than ``track_max_gap_s``: a
+    rate averaged over a long gap is not a rate, or if its 1-sigma exceeds
+    ``rate_valid_sigma_deg_s`` on an axis); ``sigma_rate_rad_s`` that 1-sigma
+    per axis, from the two attitudes' covariances (docs/protocol.md 2.2). ``prob_false`` is the
     model probability that the accepted match is wrong (tracker.identify.verify).
     ``focal_length_mm`` and ``sigma_focal_length_mm`` are this frame's own
-    estimate (NaN without a solution, or when the pixel size is unknown);
+    estimate (NaN without a solution, when the pixel size is unknown, or on
+    the windowed frames that took the filtered lens: ``track_lens_every``);
     ``lens`` is the slow filter's estimate after this frame. ``patterns`` and
     ``hypotheses`` count the lost-in-space work done.
     """
@@ -143,6 +151,7 @@ class Solution:
     sigma_roll_arcsec: float = math.nan
     residual_arcsec: float = math.nan
     rate_rad_s: np.ndarray | None = None
+    sigma_rate_rad_s: np.ndarray | None = None
     prob_false: float = 1.0
     focal_length_mm: float = math.nan
     sigma_focal_length_mm: float = math.nan
@@ -232,11 +241,13 @@ class Solver:
         self._cat_mag = np.asarray(catalogue.mag, dtype=np.float64)
         self._search = PatternSearch(bound, cfg.pattern_tolerance_px, cfg.min_separation_px)
         self._db_proj = Projector(bound.vectors)
-        self._cat_proj = Projector(self._cat_vectors)
+        self._cat_proj = Projector(self._cat_vectors, reuse_cone_rad=_CONE_REUSE_RAD)
         self._area = float(camera.width * camera.height)
         self._timer = StageTimer()
         self._prior = lens_prior(cfg, camera)
         self.lens = LensFilter(self._prior, cfg.lens_time_constant_s)
+        self._lens_cam: tuple[LensState, CameraModel] | None = None   # lens_camera's last
+        self._obs: tuple | None = None   # (camera, xy, their unit vectors): _observed's last
         self.reset()
 
     def reset(self, lens: bool = False) -> None:
@@ -251,13 +262,31 @@ class Solver:
         self._last_R: np.ndarray | None = None
         self._last_t: int | None = None
         self._rate: np.ndarray | None = None   # rotation vector rate of R, rad/s
+        self._rate_P: np.ndarray | None = None   # its covariance, (rad/s)^2
+        self._last_P: np.ndarray | None = None   # the last attitude's covariance, rad^2
+        self._unknown = np.zeros((0, 3))   # directions of unidentified stars followed
+        self._windowed = 0   # windowed tracking frames in a row (the lens fit's turn)
         self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
         self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
+        self._faintest = math.inf   # catalogue magnitude of the faintest stars matched lately
 
     def lens_camera(self) -> CameraModel:
-        """The camera model with the filtered focal length and k1."""
+        """The camera model with the filtered focal length and k1 (one object per estimate)."""
         state = self.lens.state()
-        return dataclasses.replace(self.camera, f_px=state.f_px, k1=state.k1)
+        if self._lens_cam is None or self._lens_cam[0] is not state:
+            self._lens_cam = (state, dataclasses.replace(self.camera, f_px=state.f_px,
+                                                         k1=state.k1))
+        return self._lens_cam[1]
+
+    def _observed(self, camera: CameraModel, xy: np.ndarray) -> np.ndarray:
+        """Unit vectors (n, 3) of the image stars ``xy`` through ``camera``.
+
+        Kept for the last (camera, xy) pair: tracking and refinement of a
+        frame look at the same stars through the same lens.
+        """
+        if self._obs is None or self._obs[0] is not camera or self._obs[1] is not xy:
+            self._obs = (camera, xy, camera.pixel_to_vector(xy))
+        return self._obs[2]
 
     # -- input ---------------------------------------------------------------
 
@@ -289,10 +318,18 @@ class Solver:
 
     # -- public --------------------------------------------------------------
 
-    def solve(self, stars, t_ns: int, observer=None) -> Solution:
+    def solve(self, stars, t_ns: int, observer=None, search_area_px: float | None = None,
+              predicted: np.ndarray | None = None) -> Solution:
         """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module.
 
         ``observer``: the frame's tracker.astrometry.observer.Observer (None: unknown).
+        ``search_area_px``: the stars come from windows of this total area
+        around the catalogue stars ``predicted`` (indices; this solver's
+        :meth:`prediction`, tracker.identify.windows): only tracking is
+        tried, against those stars, its false-match odds taken over that
+        area, the lens fitted on one such frame in ``track_lens_every``; a
+        frame that does not verify fails with ``not_verified`` and keeps the
+        state (the caller searches the whole frame next).
         """
         timer = self._timer
         timer.reset()
@@ -307,14 +344,18 @@ class Solver:
             return self._fail(prepared, hip)
         idx, xy, flux = prepared
         lens_cam = self.lens_camera()
+        subset = None if search_area_px is None else np.asarray(predicted)
         if self._can_track(t_ns):
             timer.start("track")
-            R = self._track(xy, lens_cam, t_ns)
+            R = self._track(xy, lens_cam, t_ns, subset)
             if R is not None:
                 timer.start("refine")
-                sol = self._finish(R, None, xy, flux, idx, hip, t_ns, "tracking", None, None)
+                sol = self._finish(R, None, xy, flux, idx, hip, t_ns, "tracking", None, None,
+                                   search_area_px or self._area, subset)
                 if sol is not None:
                     return sol
+        if search_area_px is not None:
+            return self._fail("not_verified", hip)
         timer.start("lost_in_space")
         budget = WorkBudget(self.cfg.max_patterns, self.cfg.max_hypotheses)
         f_low, f_high = self._focal_range(self.cfg.focal_tolerance)
@@ -357,6 +398,62 @@ class Solver:
                 f"outside camera.focal_length_mm {cfg_f * self._mm_per_px:.4g} {tol}; set "
                 f"camera.focal_length_mm: {mm}, or run `tracker calibrate`")
 
+    def prediction(self, t_ns: int, exposure_s: float, observer=None) -> TrackPrediction | None:
+        """The stars tracking follows into a frame at ``t_ns``, or None without a rate.
+
+        The ``identify.track_window_stars`` brightest catalogue stars predicted
+        in the image no fainter than ``track_window_mag_margin`` below the
+        faintest star matched lately (the last solution's faintest, or the
+        limit before less ``_FAINTEST_DECAY_MAG`` a frame, whichever is
+        fainter: fainter stars would not be found, their windows would cost
+        without a star; a star a little fainter found in its window raises
+        the limit for the next frame),
+        then the ``track_window_unknown`` brightest unidentified stars of the
+        last frame, each with its uncertainty and its smear over
+        ``exposure_s`` (tracker.identify.predict). Needs a recent solution and
+        a rate (the first frame after a lock has none: its stars are searched
+        in the whole frame).
+        """
+        if not self._can_track(t_ns) or self._rate is None or self._last_P is None:
+            return None
+        cfg = self.cfg
+        dt = (t_ns - self._last_t) / 1e9
+        R = self._predicted(t_ns)
+        camera = self.lens_camera()
+        beta = None if observer is None else observer.beta()
+        cat_idx, _ = self._cat_proj.predict(R, camera, beta=beta)
+        mag = self._cat_mag[cat_idx]
+        order = np.argsort(mag, kind="stable")
+        bright = np.count_nonzero(mag <= self._faintest + cfg.track_window_mag_margin)
+        cat_idx = cat_idx[order[:min(bright, cfg.track_window_stars)]]
+        ref = self._cat_vectors[cat_idx]
+        if beta is not None:
+            ref = aberrate(ref, beta)
+        vectors = np.concatenate((ref, self._unknown[:cfg.track_window_unknown]))
+        accel = math.radians(cfg.track_accel_deg_s2) * 0.5 * dt * dt
+        P = self._last_P + self._rate_P * dt * dt + np.eye(3) * accel * accel
+        xy, sigma, smear = predict_positions(camera, R, vectors, P, -self._rate, exposure_s)
+        inside = camera.in_frame(xy)
+        catalogue = np.concatenate((cat_idx, np.full(len(vectors) - len(cat_idx), -1)))
+        return TrackPrediction(R=R, xy=xy[inside], sigma_px=sigma[inside],
+                               smear_px=smear[inside], catalogue=catalogue[inside], dt_s=dt)
+
+    def smear_px(self, xy: np.ndarray, t_ns: int, exposure_s: float) -> np.ndarray | None:
+        """(n, 2) travel of image positions ``xy`` over an exposure at ``t_ns``, px.
+
+        From the current rate (tracker.identify.predict), through the pinhole
+        (distortion changes it by k1 rho^2, a few per cent of a few pixels at
+        the corners); None without a rate.
+        """
+        if not self._can_track(t_ns) or self._rate is None:
+            return None
+        camera = self.lens_camera()
+        xy = np.asarray(xy, dtype=np.float64)
+        pinhole = np.ones((len(xy), 3))
+        pinhole[:, 0] = (xy[:, 0] - camera.cx) / camera.f_px
+        pinhole[:, 1] = (xy[:, 1] - camera.cy) / camera.f_px
+        return pixel_jacobian(camera, pinhole) @ (self._rate * exposure_s)
+
     def _can_track(self, t_ns: int) -> bool:
         if self._last_R is None or self._last_t is None:
             return False
@@ -369,15 +466,24 @@ class Solver:
         dt = (t_ns - self._last_t) / 1e9
         return matrix_from_rotation_vector(self._rate * dt) @ self._last_R
 
-    def _track(self, xy, camera: CameraModel, t_ns: int) -> np.ndarray | None:
+    def _project(self, R, camera: CameraModel, subset: np.ndarray | None):
+        """(catalogue indices, pixels) of the catalogue stars in the image, or of ``subset``."""
+        if subset is None:
+            return self._cat_proj.predict(R, camera, beta=self._beta)
+        pix = camera.vector_to_pixel(self._seen(subset) @ R.T)
+        inside = camera.in_frame(pix)
+        return subset[inside], pix[inside]
+
+    def _track(self, xy, camera: CameraModel, t_ns: int,
+               subset: np.ndarray | None = None) -> np.ndarray | None:
         """The attitude from the predicted one after one gated pass, or None."""
         R = self._predicted(t_ns)
-        cat_idx, pred = self._cat_proj.predict(R, camera, beta=self._beta)
+        cat_idx, pred = self._project(R, camera, subset)
         which, _ = match_nearest(xy, pred, self.cfg.track_gate_px)
         ok = which >= 0
         if np.count_nonzero(ok) < self.cfg.min_matched:
             return None
-        return solve_wahba(camera.pixel_to_vector(xy[ok]), self._seen(cat_idx[which[ok]]))
+        return solve_wahba(self._observed(camera, xy)[ok], self._seen(cat_idx[which[ok]]))
 
     def _seen(self, cat_idx: np.ndarray) -> np.ndarray:
         """Catalogue directions as this frame's observer sees them (module docstring)."""
@@ -457,21 +563,24 @@ class Solver:
         off = np.abs(diff - np.median(diff)) > self.cfg.mag_tolerance
         ok[rows[off]] = False
 
-    def _match_catalogue(self, R, camera, xy, flux, radius: float):
-        """(ok mask, which, cat_idx, predictions) of the image stars against the catalogue."""
-        cat_idx, pred = self._cat_proj.predict(R, camera, beta=self._beta)
-        which, _ = match_nearest(xy, pred, radius)
+    def _match_catalogue(self, R, camera, xy, flux, radius: float, subset=None):
+        """(ok mask, which, cat_idx, predictions, distances) of the image stars against
+        the catalogue (or its ``subset``)."""
+        cat_idx, pred = self._project(R, camera, subset)
+        which, dist = match_nearest(xy, pred, radius)
         ok = which >= 0
         self._photometric_check(ok, which, cat_idx, flux)
-        return ok, which, cat_idx, pred
+        return ok, which, cat_idx, pred, dist
 
-    def _finish(self, R, prob, xy, flux, idx, hip, t_ns, mode, budget, f_px
+    def _finish(self, R, prob, xy, flux, idx, hip, t_ns, mode, budget, f_px,
+                area_px: float | None = None, subset: np.ndarray | None = None
                 ) -> Solution | None:
         """Refine against the catalogue, fit the lens, update the state (module docstring).
 
-        ``prob`` None (tracking) means: verify here, with the refined matches;
-        returns None if they do not verify. ``f_px``: the focal length lost in
-        space found with ``R`` (None: the filtered lens's).
+        ``prob`` None (tracking) means: verify here, with the refined matches
+        (the stars found in ``area_px``); returns None if they do not verify.
+        ``f_px``: the focal length lost in space found with ``R`` (None: the
+        filtered lens's). ``subset``: windowed tracking (see :meth:`solve`).
         """
         cfg = self.cfg
         camera = self.lens_camera()
@@ -482,28 +591,37 @@ class Solver:
             # radius the last frame's residuals gave
             radius = self._radius
         else:
-            ok, which, cat_idx, _ = self._match_catalogue(R, camera, xy, flux,
-                                                          self._first_radius())
+            ok, which, cat_idx, _, _ = self._match_catalogue(R, camera, xy, flux,
+                                                             self._first_radius())
             if np.count_nonzero(ok) < 4:
                 return None
             first = fit_frame(xy[ok], self._seen(cat_idx[which[ok]]), R, camera,
                               self._prior, cfg.centroid_sigma_px)
             R, camera, radius = first.R, first.camera, self._final_radius(first.residuals)
-        ok, which, cat_idx, pred = self._match_catalogue(R, camera, xy, flux, radius)
+        ok, which, cat_idx, pred, dist = self._match_catalogue(R, camera, xy, flux, radius,
+                                                               subset)
         n = int(np.count_nonzero(ok))
         if prob is None:
-            prob = false_match_probability(n, len(xy), len(pred), radius, self._area, 1)
+            prob = false_match_probability(n, len(xy), len(pred), radius, area_px, 1)
             if n < cfg.min_matched or prob >= cfg.max_prob_false:
                 return None
         if n < 4:
             return None
         ref = self._seen(cat_idx[which[ok]])
-        frame = fit_frame(xy[ok], ref, R, camera, self._prior, cfg.centroid_sigma_px)
-        self._radius = self._final_radius(frame.residuals)
-        self.lens.update(frame, t_ns)
+        faintest = float(self._cat_mag[cat_idx[which[ok]]].max())
+        if math.isfinite(self._faintest):
+            faintest = max(faintest, self._faintest - _FAINTEST_DECAY_MAG)
+        self._faintest = faintest
+        frame = None
+        self._windowed = self._windowed + 1 if subset is not None else 0
+        if self._windowed % cfg.track_lens_every == 0:
+            frame = fit_frame(xy[ok], ref, R, camera, self._prior, cfg.centroid_sigma_px)
+            self.lens.update(frame, t_ns)
+        self._radius = self._final_radius(dist[ok] if frame is None else frame.residuals)
         state = self.lens.state()
-        lens_cam = dataclasses.replace(self.camera, f_px=state.f_px, k1=state.k1)
-        obs = lens_cam.pixel_to_vector(xy[ok])
+        lens_cam = self.lens_camera()
+        observed = self._observed(lens_cam, xy)
+        obs = observed[ok]
         R = solve_wahba(obs, ref)
         resid2 = float(np.square(obs - ref @ R.T).sum())
         sigma0 = cfg.centroid_sigma_px / lens_cam.f_px
@@ -512,16 +630,28 @@ class Solver:
         P = attitude_covariance(obs, sigma)
         hip[idx[ok]] = self._cat_hip[cat_idx[which[ok]]]
         ra, dec, roll = radec_roll_from_matrix(_centre_rotation(lens_cam) @ R)
-        rate = None
+        rate = rate_sigma = None
         if self._last_R is not None and self._last_t is not None and \
                 0 < t_ns - self._last_t <= self.cfg.track_max_gap_s * 1e9:
-            new_rate = rotation_vector(R @ self._last_R.T) / ((t_ns - self._last_t) / 1e9)
+            dt = (t_ns - self._last_t) / 1e9
+            new_rate = rotation_vector(R @ self._last_R.T) / dt
+            new_P = (P + self._last_P) / (dt * dt)
             # average with the previous estimate: halves the noise of a steady rate
-            self._rate = new_rate if self._rate is None else 0.5 * (self._rate + new_rate)
-            rate = -self._rate
+            if self._rate is None:
+                self._rate, self._rate_P = new_rate, new_P
+            else:
+                self._rate = 0.5 * (self._rate + new_rate)
+                self._rate_P = 0.25 * (self._rate_P + new_P)
+            rate_sigma = np.sqrt(np.diag(self._rate_P))
+            if rate_sigma.max() <= math.radians(self.cfg.rate_valid_sigma_deg_s):
+                rate = -self._rate
+            else:
+                rate_sigma = None
         else:
-            self._rate = None
-        self._last_R, self._last_t = R, t_ns
+            self._rate = self._rate_P = None
+        self._last_R, self._last_t, self._last_P = R, t_ns, P
+        unmatched = np.flatnonzero(~ok)[:self.cfg.track_window_unknown]
+        self._unknown = observed[unmatched] @ R
         self._timer.stop()
         return Solution(
             ok=True, reason=None, hip=hip, mode=mode, R=R, q=quat_from_matrix(R),
@@ -529,8 +659,11 @@ class Solver:
             matched=n, sigma_cross_arcsec=math.sqrt(P[0, 0] + P[1, 1]) * _ARCSEC,
             sigma_roll_arcsec=math.sqrt(P[2, 2]) * _ARCSEC,
             residual_arcsec=math.sqrt(resid2 / n) * _ARCSEC, rate_rad_s=rate,
-            prob_false=prob, focal_length_mm=frame.camera.f_px * self._mm_per_px,
-            sigma_focal_length_mm=math.sqrt(frame.cov[0, 0]) * self._mm_per_px,
+            sigma_rate_rad_s=rate_sigma,
+            prob_false=prob,
+            focal_length_mm=math.nan if frame is None else frame.camera.f_px * self._mm_per_px,
+            sigma_focal_length_mm=(math.nan if frame is None
+                                   else math.sqrt(frame.cov[0, 0]) * self._mm_per_px),
             lens=self._lens_report(state),
             patterns=budget.patterns if budget else 0,
             hypotheses=budget.hypotheses if budget else 0, stages_ms=dict(self._timer.ms))

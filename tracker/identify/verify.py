@@ -36,12 +36,28 @@ class Projector:
 
     ``vectors`` (N, 3) are ICRS unit vectors (the catalogue's or the
     database's). Only stars in the declination band of the field are
-    looked at (tracker.identify.skyindex).
+    looked at (tracker.identify.skyindex). With ``reuse_cone_rad`` > 0 the
+    cone is searched that much wider and reused while the optical axis
+    stays within that angle of the cone's (tracking: three predictions a
+    frame, and frames after frame, from one search).
     """
 
-    def __init__(self, vectors: np.ndarray) -> None:
+    def __init__(self, vectors: np.ndarray, reuse_cone_rad: float = 0.0) -> None:
         self.vectors = np.ascontiguousarray(vectors, dtype=np.float64)
         self.index = DecSorted(self.vectors)
+        self.reuse = float(reuse_cone_rad)
+        self._cone: tuple[np.ndarray, float, np.ndarray] | None = None
+
+    def _near(self, axis: np.ndarray, radius: float) -> np.ndarray:
+        """Sorted indices of (at least) the vectors within ``radius`` of ``axis``."""
+        if self.reuse > 0.0 and self._cone is not None:
+            c_axis, c_radius, near = self._cone
+            if c_radius >= radius and float(np.dot(axis, c_axis)) >= math.cos(c_radius - radius):
+                return near
+        near = np.sort(self.index.cone(axis, radius + self.reuse))
+        if self.reuse > 0.0:
+            self._cone = (np.array(axis, dtype=np.float64), radius + self.reuse, near)
+        return near
 
     @staticmethod
     def _cone_radius(camera: CameraModel) -> float:
@@ -69,7 +85,7 @@ class Projector:
         arcsec from the astrometric ones, inside the cone's two pixels of
         slack) and ``R`` is the ICRS attitude.
         """
-        near = np.sort(self.index.cone(R[2], self._cone_radius(camera)))
+        near = self._near(R[2], self._cone_radius(camera))
         seen = self.vectors[near] if beta is None else aberrate(self.vectors[near], beta)
         pix = camera.vector_to_pixel(seen @ R.T)
         inside = camera.in_frame(pix, margin_px)

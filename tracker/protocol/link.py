@@ -11,7 +11,8 @@ before replies, so no command traffic can slow it; a reply waits at most one
 ATTITUDE packet.
 
 When a class's queue is full its oldest packet is dropped; a telemetry packet
-older than ``max_age_ms`` when its turn comes is dropped too. Replies are not
+older than ``max_age_ms`` when its turn comes is dropped too (an ATTITUDE
+given its frame's time is aged from that: :meth:`Link.send_attitude`). Replies are not
 dropped for age: a burst of up to ``queue_replies`` commands gets every
 reply; a longer flood (commands arriving faster than their replies can be
 sent) sheds the oldest waiting replies. Every drop is counted.
@@ -23,6 +24,15 @@ SET_MODE, SET_EXPOSURE, SET_GAIN, TIME_SYNC and SET_VELOCITY go to the daemon's
 CRC, unknown id, wrong length or out-of-range field are NACKed without
 calling it. If the port fails (open, read or write), it is closed and
 reopened after ``reopen_backoff_s``, doubling up to ``reopen_backoff_max_s``.
+
+Latency: for each ATTITUDE given its frame's time (``t_ref_ns``, the
+exposure mid-point on this clock), the writer records the time from it to
+the packet's last byte on the wire: when ``write`` returns, plus the bytes
+still in the kernel's transmit queue (TIOCOUTQ, the packet itself at least
+when the port cannot say) at the baud rate. :attr:`Link.latency` holds
+them (percentiles, the largest). The stale rule bounds it: an ATTITUDE is
+never sent more than ``max_age_ms`` after its exposure plus the writer's
+burst (20 ms of the link's bandwidth) and its own transmission.
 
 An exception raised while serving the FC (a bug, or a handler that fails)
 is caught, counted (``internal_errors``), logged and answered with NACK
@@ -56,6 +66,7 @@ from tracker.protocol.messages import (
     Reason,
     saturate,
 )
+from tracker.timing import LatencyRing
 
 __all__ = ["CommandHandler", "Link", "OutputGate", "LINK_STATUS_FIELDS"]
 
@@ -185,6 +196,8 @@ class Link:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._rx_t_ns = 0
+        self.latency = LatencyRing()
+        self._byte_ns = BITS_PER_BYTE * 1e9 / cfg.baudrate
         self._failure: str | None = None
         self.counters: collections.Counter = collections.Counter()
         self._count_lock = threading.Lock()
@@ -244,7 +257,7 @@ class Link:
     def send_attitude(self, *, frame_id: int, t_ns: int, q: np.ndarray | None,
                       sigma_cross_arcsec: float, sigma_roll_arcsec: float, matched: int,
                       mode: Mode, flags: int = 0, rate_dps: np.ndarray | None = None,
-                      ) -> bool:
+                      t_ref_ns: int | None = None) -> bool:
         """Queue ATTITUDE if due; True if queued.
 
         q = [w, x, y, z] (v_cam = R v_icrs) or None when there is no solution
@@ -252,6 +265,8 @@ class Link:
         None (NaN, RATE_VALID clear). VALID and RATE_VALID are set from these;
         ``flags`` may add TIME_SYNCED, and to a VALID attitude ANNUAL_ABERRATION
         and OBSERVER_VELOCITY. Integers saturate at their wire type.
+        ``t_ref_ns``: the frame's exposure mid-point on the link's clock; the
+        packet's age (``max_age_ms``) and its latency run from it.
         """
         if not self.gate.due(MsgId.ATTITUDE, self._clock()):
             return False
@@ -265,7 +280,7 @@ class Link:
             rate_dps = (_NAN,) * 3
         else:
             flags |= AttitudeFlag.RATE_VALID
-        return self._put(MsgId.ATTITUDE, frame_id=frame_id, t_ns=t_ns,
+        return self._put(MsgId.ATTITUDE, t_ref_ns=t_ref_ns, frame_id=frame_id, t_ns=t_ns,
                          q_w=q[0], q_x=q[1], q_y=q[2], q_z=q[3],
                          sigma_cross_arcsec=sigma_cross_arcsec,
                          sigma_roll_arcsec=sigma_roll_arcsec,
@@ -342,18 +357,27 @@ class Link:
                       rx_rejects=self.rx_rejects)
         return self._put(MsgId.STATUS, **values)
 
-    def _put(self, msg_id: MsgId, **values) -> bool:
+    def _put(self, msg_id: MsgId, t_ref_ns: int | None = None, **values) -> bool:
         values = saturate(msg_id, values)
         with self._enc_lock:
             packet = self._encoder.encode(msg_id, **values)
-        self._enqueue(BY_ID[msg_id].priority, self._clock(), packet)
+        self._enqueue(BY_ID[msg_id].priority, self._clock(), packet, t_ref_ns)
         return True
 
-    def _enqueue(self, cls: int, now_ns: int, packet: bytes) -> None:
+    def _enqueue(self, cls: int, now_ns: int, packet: bytes, t_ref_ns: int | None = None
+                 ) -> None:
         name = _CLASSES[cls]
         self._count(f"queued_{name}")
-        if not self._queue.put(cls, (now_ns, packet)):
+        if not self._queue.put(cls, (now_ns, packet, t_ref_ns)):
             self._count(f"dropped_full_{name}")
+
+    def _on_wire_ns(self, port, packet: bytes) -> int:
+        """When the last byte just written leaves: now plus the transmit queue's bytes."""
+        try:
+            queued = int(port.out_waiting)
+        except (AttributeError, *_PORT_ERRORS):
+            queued = len(packet)
+        return self._clock() + round(queued * self._byte_ns)
 
     def _open_serial(self) -> serial.SerialBase:
         # exclusive: an flock on the device, so a second user (tracker selftest, a
@@ -436,8 +460,8 @@ class Link:
                 if cls is None:
                     qs.cond.wait(0.1)
                     continue
-                t0, packet = qs.q[cls][0]
-                if cls != _REPLY and now - t0 > max_age_ns:
+                t0, packet, t_ref = qs.q[cls][0]
+                if cls != _REPLY and now - (t0 if t_ref is None else t_ref) > max_age_ns:
                     qs.q[cls].popleft()
                     self._count(f"dropped_stale_{_CLASSES[cls]}")
                     continue
@@ -457,6 +481,8 @@ class Link:
                 self._count(f"dropped_write_{_CLASSES[cls]}")
                 self._port_failed(port, exc)
                 continue
+            if t_ref is not None:
+                self.latency.add((self._on_wire_ns(port, packet) - t_ref) / 1e6)
             tokens -= len(packet)
             self._count(f"sent_{_CLASSES[cls]}")
             self._count("bytes_sent", len(packet))

@@ -90,7 +90,9 @@ class AttitudeFlag(enum.IntFlag):
     """Bits of ATTITUDE.flags; the other bits are reserved and sent as 0."""
 
     VALID = 1          # the quaternion and sigmas hold a solution for this frame
-    RATE_VALID = 2     # rate_x/y/z hold a rate measured over at most identify.track_max_gap_s
+    RATE_VALID = 2     # rate_x/y/z hold a rate from two solutions at most
+    #                    identify.track_max_gap_s apart, 1-sigma below
+    #                    identify.rate_valid_sigma_deg_s on every axis (section 2.2)
     TIME_SYNCED = 4    # t_ns is TAI ns since 1970 (STATUS time_source: from where), else the
     #                    tracker's monotonic clock
     ANNUAL_ABERRATION = 8    # with VALID: corrected for the Earth's velocity (q is ICRS)

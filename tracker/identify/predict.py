@@ -1,0 +1,81 @@
+"""Where tracked stars will be in the next frame, how sure that is, and how far they smear.
+
+Conventions: v_cam = R @ v_icrs; a small rotation theta (radians, camera
+frame) of the attitude moves a direction to v + theta x v (R_true =
+exp([theta]x) R_est, as tracker.attitude.attitude_covariance defines the
+error); the body rate omega (rad/s, camera frame) moves directions as
+dv_cam/dt = -omega x v_cam.
+
+The predicted attitude at time t is exp([r dt]x) R_last, r the solver's
+rate of R (= -omega), dt = t - t_last. Its error theta has covariance
+
+    P(t) = P_last + P_r dt^2 + (a dt^2 / 2)^2 I
+
+(P_last the last attitude's, P_r the rate's, a the angular acceleration
+allowed, 1 sigma per axis). A star at normalised image coordinates
+(u, w) = (X/Z, Y/Z) moves by J theta pixels with
+
+    J = f [[-u w, 1 + u^2, -w], [-(1 + w^2), u w, u]]
+
+(pinhole; distortion changes J by k1 rho^2, well below the slack in the
+windows), so its position's covariance is J P J^T and its radial
+1-sigma ``sqrt(trace)``. Over an exposure of T seconds it travels
+``J (-omega) T`` pixels (the smear), centred on the mid-exposure position
+the frame's time stamps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tracker.camera import CameraModel
+
+__all__ = ["TrackPrediction", "pixel_jacobian", "predict_positions"]
+
+
+@dataclass(frozen=True)
+class TrackPrediction:
+    """Predicted image positions of the stars tracking follows, brightest first.
+
+    ``xy`` (m, 2) px at mid-exposure; ``sigma_px`` (m,) radial 1-sigma of
+    each; ``smear_px`` (m, 2) its travel over the exposure; ``catalogue``
+    (m,) its catalogue index, -1 for an unidentified star followed.
+    ``R`` the predicted attitude; ``dt_s`` the time since the last solution.
+    """
+
+    R: np.ndarray
+    xy: np.ndarray
+    sigma_px: np.ndarray
+    smear_px: np.ndarray
+    catalogue: np.ndarray
+    dt_s: float
+
+
+def pixel_jacobian(camera: CameraModel, cam_vectors: np.ndarray) -> np.ndarray:
+    """(m, 2, 3): d(pixel) / d(theta) at camera-frame directions ``cam_vectors`` (m, 3)."""
+    v = np.asarray(cam_vectors, dtype=np.float64)
+    u, w = v[:, 0] / v[:, 2], v[:, 1] / v[:, 2]
+    J = np.empty((len(v), 2, 3))
+    J[:, 0, 0], J[:, 0, 1], J[:, 0, 2] = -u * w, 1.0 + u * u, -w
+    J[:, 1, 0], J[:, 1, 1], J[:, 1, 2] = -(1.0 + w * w), u * w, u
+    return J * camera.f_px
+
+
+def predict_positions(camera: CameraModel, R: np.ndarray, vectors: np.ndarray,
+                      P_theta: np.ndarray, omega: np.ndarray,
+                      exposure_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(xy, radial sigma, smear) in px of ICRS (or apparent) ``vectors`` (m, 3) at ``R``.
+
+    ``P_theta`` (3, 3) the attitude's error covariance (rad^2, module
+    docstring), ``omega`` the body rate (rad/s, camera frame), ``exposure_s``
+    the exposure time.
+    """
+    cam = np.asarray(vectors, dtype=np.float64) @ np.asarray(R).T
+    xy = camera.vector_to_pixel(cam)
+    J = pixel_jacobian(camera, cam)
+    cov = np.einsum("mij,jk,mlk->mil", J, P_theta, J)
+    sigma = np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 0.0))
+    smear = J @ (-np.asarray(omega, dtype=np.float64) * exposure_s)
+    return xy, sigma, smear
