@@ -297,6 +297,7 @@ class DefaultDetector:
         self.tail = NoiseTail(self.grid.index)
         self.textured = np.zeros(grid_shape, np.bool_)
         self.dark_side = np.zeros(grid_shape, np.bool_)
+        self.sky_model = (0.0, 0.0, 0.0)   # the frame's sky noise model (_mark_dark_side)
         self.near_texture = np.zeros(grid_shape, np.bool_)
         self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
         self.surroundings = Surroundings(layout.stride, sky_radius, cfg.max_candidates, _CHUNK,
@@ -375,6 +376,7 @@ class DefaultDetector:
         if self._mark_dark_side():
             grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
                        upper=True, dark_side=self.dark_side)
+            self.sky_model = sky_noise_model(self.level, self.noise, self.saturation)
         grid.upsample(self.level, self.bg)
         np.multiply(self.noise, self.cfg.impulse_sigma, out=self.float_grid)
         np.clip(self.float_grid, 0.0, 65535.0, out=self.float_grid)
@@ -427,9 +429,11 @@ class DefaultDetector:
         part (6th-37th percentile) is within that of the sky around it: sky
         and ground (or glare) in one tile. Its statistics then come from the
         darker part (tracker.detect.background), so the stars on the sky side
-        meet the sky's background and threshold.
+        meet the sky's background and threshold. Keeps the sky's noise model
+        (tracker.detect.surroundings.sky_noise_model) in ``sky_model``.
         """
-        level0, var0, slope = sky_noise_model(self.level, self.noise, self.saturation)
+        self.sky_model = sky_noise_model(self.level, self.noise, self.saturation)
+        level0, var0, slope = self.sky_model
         grid = self.grid
         m = grid.samples.shape[-1]
         dark = grid.samples[..., m // 16: 3 * m // 8].mean(axis=-1)
@@ -833,7 +837,7 @@ class DefaultDetector:
         (tracker.detect.surroundings)."""
         if self.cfg.min_sky_sectors == 0:
             return np.zeros(n, bool)
-        level0, var0, slope = sky_noise_model(self.level, self.noise, self.saturation)
+        level0, var0, slope = self.sky_model          # of the background stage's grids
         bg = self.cand_level[:n]                    # scratch: the background at each
         np.take(self.bg_pad.ravel(), cand, out=bg, mode="clip")
         sky = self.cand_noise[:n]                   # scratch from here on

@@ -21,9 +21,17 @@ precision, never bias). Pixels at or above ``saturation`` are left out
 stars are centred on their unclipped wings by the same fit.
 
 Every step is clamped to ``max_shift`` px from the window's centre pixel.
+
+The model is separable, mu = F fy(r) fx(c), so every entry of the normal
+matrix and the gradient is a bilinear form a(r)^T M b(c) of a per-window
+matrix M (the weights W, or W times the residual) with outer products of
+the per-axis fractions and their derivatives: sum W jx jx = F^2 sum_r
+fy^2 (W dfx^2)_r, and so on. Each Gauss-Newton step therefore passes over
+the windows' pixels a handful of times (model, weights, weighted residual,
+two batched matrix products), not once per entry of the normal matrix.
 All arrays are preallocated for ``chunk`` windows of up to ``max_side``^2
-pixels; the separable per-axis fractions are the only per-call temporaries
-(a few kB).
+pixels; the per-axis fractions and their products are the only per-call
+temporaries (a few kB).
 """
 
 from __future__ import annotations
@@ -46,7 +54,9 @@ class PixelGaussianFit:
         self.iterations = int(iterations)
         size = self.chunk * self.max_side ** 2
         self._flat = {name: np.zeros(size, np.float64)
-                      for name in ("shape", "model", "weight", "resid", "jx", "jy", "tmp")}
+                      for name in ("model", "weight", "resid", "usable")}
+        self._rows = np.zeros(self.chunk * self.max_side * 3, np.float64)   # W b(c), R b(c)
+        self._axis = np.zeros(self.chunk * self.max_side * 3, np.float64)   # b(c)
         self._normal = np.zeros((self.chunk, 3, 3), np.float64)
         self._grad = np.zeros((self.chunk, 3), np.float64)
         self._flux = np.zeros(self.chunk, np.float64)
@@ -63,21 +73,44 @@ class PixelGaussianFit:
         self.edges = np.arange(-radius, radius + 2, dtype=np.float64) - 0.5
 
     def _views(self, m: int) -> dict:
-        k = self.side * self.side
-        return {name: buf[: m * k].reshape(m, k) for name, buf in self._flat.items()}
-
-    def _model(self, m: int, x: np.ndarray, y: np.ndarray, flux: np.ndarray, v: dict) -> None:
-        """shape, model and the Jacobian columns jx, jy (flux times the shape's derivatives)."""
         side = self.side
-        fx, dfx = pixel_fractions(self.edges[None, :] - x[:, None], self.sigma)
-        fy, dfy = pixel_fractions(self.edges[None, :] - y[:, None], self.sigma)
-        grid = (m, side, side)
-        np.multiply(fy[:, :, None], fx[:, None, :], out=v["shape"].reshape(grid))
-        np.multiply(fy[:, :, None], dfx[:, None, :], out=v["jx"].reshape(grid))
-        np.multiply(dfy[:, :, None], fx[:, None, :], out=v["jy"].reshape(grid))
-        np.multiply(v["jx"], flux[:, None], out=v["jx"])
-        np.multiply(v["jy"], flux[:, None], out=v["jy"])
-        np.multiply(v["shape"], flux[:, None], out=v["model"])
+        k = side * side
+        return {name: buf[: m * k].reshape(m, side, side) for name, buf in self._flat.items()}
+
+    def _columns(self, m: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(m, side, n) views of the per-axis factors b(c) and of W b(c) (or R b(c))."""
+        size = m * self.side * n
+        shape = (m, self.side, n)
+        return self._axis[:size].reshape(shape), self._rows[:size].reshape(shape)
+
+    def _normal_equations(self, m: int, fx, dfx, fy, dfy, flux, v: dict) -> None:
+        """normal (m, 3, 3) and grad (m, 3) over (x, y, F) from the weights ``v["weight"]``
+        and the weighted residuals ``v["resid"]`` (module docstring: bilinear forms)."""
+        normal, grad = self._normal[:m], self._grad[:m]
+        cols, wb = self._columns(m, 3)
+        np.multiply(dfx, dfx, out=cols[..., 0])
+        np.multiply(dfx, fx, out=cols[..., 1])
+        np.multiply(fx, fx, out=cols[..., 2])
+        np.matmul(v["weight"], cols, out=wb)            # (W dfx^2, W dfx fx, W fx^2)
+        fy2, fydy = fy * fy, fy * dfy
+        f, f2 = flux, flux * flux
+        xx = f2 * np.einsum("ij,ij->i", fy2, wb[..., 0])
+        xy = f2 * np.einsum("ij,ij->i", fydy, wb[..., 1])
+        xf = f * np.einsum("ij,ij->i", fy2, wb[..., 1])
+        yy = f2 * np.einsum("ij,ij->i", dfy * dfy, wb[..., 2])
+        yf = f * np.einsum("ij,ij->i", fydy, wb[..., 2])
+        ff = np.einsum("ij,ij->i", fy2, wb[..., 2])
+        normal[:, 0, 0], normal[:, 1, 1], normal[:, 2, 2] = xx, yy, ff
+        normal[:, 0, 1] = normal[:, 1, 0] = xy
+        normal[:, 0, 2] = normal[:, 2, 0] = xf
+        normal[:, 1, 2] = normal[:, 2, 1] = yf
+        cols, rb = self._columns(m, 2)
+        np.copyto(cols[..., 0], dfx)
+        np.copyto(cols[..., 1], fx)
+        np.matmul(v["resid"], cols, out=rb)             # (R dfx, R fx)
+        grad[:, 0] = f * np.einsum("ij,ij->i", fy, rb[..., 0])
+        grad[:, 1] = f * np.einsum("ij,ij->i", dfy, rb[..., 1])
+        grad[:, 2] = np.einsum("ij,ij->i", fy, rb[..., 1])
 
     def run(self, m: int, signal: np.ndarray, raw: np.ndarray, x: np.ndarray, y: np.ndarray,
             noise: np.ndarray, saturation: float, max_shift: float) -> np.ndarray:
@@ -90,28 +123,27 @@ class PixelGaussianFit:
         centre.
         """
         v = self._views(m)
+        side = self.side
+        grid = (m, side, side)
         flux = self._flux[:m]
         np.sum(signal, axis=1, out=flux)
         np.maximum(flux, 1.0, out=flux)
-        usable = v["tmp"]
-        np.less(raw, saturation, out=usable)        # 1.0 where the pixel is not clipped
-        noise2 = np.maximum(np.square(noise[:m]), _MIN_VAR)
+        usable = v["usable"]
+        np.less(raw.reshape(grid), saturation, out=usable)   # 1.0 where not clipped
+        noise2 = np.maximum(np.square(noise[:m]), _MIN_VAR)[:, None, None]
         normal, grad = self._normal[:m], self._grad[:m]
+        w, model, resid = v["weight"], v["model"], v["resid"]
         for _ in range(self.iterations):
-            self._model(m, x, y, flux, v)
+            fx, dfx = pixel_fractions(self.edges[None, :] - x[:, None], self.sigma)
+            fy, dfy = pixel_fractions(self.edges[None, :] - y[:, None], self.sigma)
+            np.multiply((flux[:, None] * fy)[:, :, None], fx[:, None, :], out=model)
             # weights 1 / (noise^2 + max(model, 0)), zero for clipped pixels
-            w = v["weight"]
-            np.maximum(v["model"], 0.0, out=w)
-            np.add(w, noise2[:, None], out=w)
+            np.maximum(model, 0.0, out=w)
+            np.add(w, noise2, out=w)
             np.divide(usable, w, out=w)
-            np.subtract(signal, v["model"], out=v["resid"])
-            cols = (v["jx"], v["jy"], v["shape"])
-            for a in range(3):
-                np.multiply(cols[a], w, out=v["model"])          # model: scratch from here on
-                grad[:, a] = np.einsum("ij,ij->i", v["model"], v["resid"])
-                for b in range(a, 3):
-                    normal[:, a, b] = normal[:, b, a] = np.einsum("ij,ij->i", v["model"],
-                                                                  cols[b])
+            np.subtract(signal.reshape(grid), model, out=resid)
+            np.multiply(resid, w, out=resid)
+            self._normal_equations(m, fx, dfx, fy, dfy, flux, v)
             det = np.linalg.det(normal)
             good = np.isfinite(det) & (det > 0)
             if not np.any(good):

@@ -51,8 +51,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker.detect.windowed import second_moments
-
 __all__ = ["PsfEstimate", "PsfMeter", "PsfTracker", "SIGMA_MIN_PX", "SIGMA_MAX_PX",
            "FWHM_PER_SIGMA", "pixel_tensor_to_optics", "combine_stars"]
 
@@ -130,7 +128,10 @@ class PsfMeter:
         self._windows: dict[int, tuple] = {}
         k = (2 * self.radius + 1) ** 2
         c = self.capacity
-        self._flat = {name: np.zeros(c * k, np.float64) for name in ("s", "ex", "ey", "w", "t")}
+        self._flat = {name: np.zeros(c * k, np.float64) for name in ("s", "ex", "ey", "t")}
+        side = 2 * self.radius + 1
+        self._axis = np.zeros(c * side * 3, np.float64)    # per-column weight factors
+        self._rows = np.zeros(c * side * 3, np.float64)    # the window times them
         self._index = np.zeros(c * k, np.intp)
         self._raw = np.zeros(c * k, np.uint16)
         self._bgwin = np.zeros(c * k, np.float32)
@@ -140,12 +141,13 @@ class PsfMeter:
             "raw_peak")}
 
     def _window(self, radius: int) -> tuple:
-        """(offsets, dx, dy, r) of a window of ``radius``, made once per radius."""
+        """(offsets, r) of a window of ``radius``: padded flat offsets and the distance
+        of each pixel from the centre, px; made once per radius."""
         if radius not in self._windows:
             dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
             dx, dy = dx.ravel().astype(np.float64), dy.ravel().astype(np.float64)
             offsets = (dy * self.stride + dx).astype(np.intp)
-            self._windows[radius] = (offsets, dx, dy, np.hypot(dx, dy))
+            self._windows[radius] = (offsets, np.hypot(dx, dy))
         return self._windows[radius]
 
     def measure(self, n: int, image_pad: np.ndarray, bg_pad: np.ndarray, cand: np.ndarray,
@@ -212,7 +214,7 @@ class PsfMeter:
                  iterations: int) -> dict:
         """Adaptive moments of the first ``n`` stars in windows of ``radius``; returns the
         window views (their ``s`` holds the background-subtracted light)."""
-        offsets, dx, dy, _ = self._window(radius)
+        offsets, _ = self._window(radius)
         v = self._views(n, len(offsets))
         np.add(cand[:n, None], offsets[None, :], out=v["index"])
         np.take(image_pad.ravel(), v["index"], out=v["raw"], mode="clip")
@@ -222,17 +224,17 @@ class PsfMeter:
         q["x"].fill(0.0)
         q["y"].fill(0.0)
         for _ in range(iterations):
-            self._weighted(q, v, dx, dy)
+            self._weighted(q, v, radius)
             # move to the weighted centroid (gain 2: exact when the weight matches the spot)
             np.clip(q["x"] + 2.0 * q["mxx"], -1.5, 1.5, out=q["x"])  # mxx: sum(W S ex) / S0
             np.clip(q["y"] + 2.0 * q["myy"], -1.5, 1.5, out=q["y"])
-            self._weighted(q, v, dx, dy, second=True)
+            self._weighted(q, v, radius, second=True)
             _deconvolve_weight(q)
             np.add(q["cxx"], q["cyy"], out=q["w2"])
             np.multiply(q["w2"], 0.5, out=q["w2"])
             np.nan_to_num(q["w2"], copy=False, nan=_MIN_WEIGHT_PX ** 2)
             np.clip(q["w2"], _MIN_WEIGHT_PX ** 2, (1.2 * SIGMA_MAX_PX) ** 2, out=q["w2"])
-        self._weighted(q, v, dx, dy, second=True)
+        self._weighted(q, v, radius, second=True)
         _deconvolve_weight(q)
         return v
 
@@ -240,7 +242,7 @@ class PsfMeter:
                   saturation: float) -> np.ndarray:
         """Unsaturated stars whose ring at 3.5-4.5 w holds < 2 % of their peak (beyond three
         standard errors of its mean), inside the window."""
-        _, _, _, r = self._window(radius)
+        _, r = self._window(radius)
         t, ring = v["t"], v["ex"]
         w_now = np.sqrt(p["w2"])
         np.divide(r[None, :], w_now[:, None], out=t)             # r / w
@@ -256,30 +258,41 @@ class PsfMeter:
                 & (ring_light < _RING_FRACTION * p["peak"]
                    + 3.0 * noise / np.sqrt(np.maximum(p["ring"], 1.0))))
 
-    @staticmethod
-    def _weighted(p: dict, v: dict, dx: np.ndarray, dy: np.ndarray, second: bool = False):
+    def _weighted(self, p: dict, v: dict, radius: int, second: bool = False) -> None:
         """First (``second`` False) or second weighted moments about (x, y) into mxx, myy, mxy.
 
         First moments are stored as mxx = sum(W S ex) / S0 and myy likewise.
+        The Gaussian weight is separable, W = gy(row) gx(col), so each sum is
+        gy-weighted over rows of S times one of gx, gx ex, gx ex^2 (one
+        batched matrix product over the windows' pixels).
         """
-        ex, ey, w, t, s = v["ex"], v["ey"], v["w"], v["t"], v["s"]
-        np.subtract(dx[None, :], p["x"][:, None], out=ex)
-        np.subtract(dy[None, :], p["y"][:, None], out=ey)
-        np.multiply(ex, ex, out=w)
-        np.multiply(ey, ey, out=t)
-        np.add(w, t, out=w)
-        np.multiply(w, (-0.5 / p["w2"])[:, None], out=w)
-        np.exp(w, out=w)
-        np.multiply(w, s, out=w)                      # W S
-        np.sum(w, axis=1, out=p["s0"])
+        n, side = len(p["x"]), 2 * radius + 1
+        axis = np.arange(-radius, radius + 1, dtype=np.float64)
+        ex = axis[None, :] - p["x"][:, None]                # (n, side): column offsets
+        ey = axis[None, :] - p["y"][:, None]                # row offsets
+        scale = (-0.5 / p["w2"])[:, None]
+        gx, gy = np.exp(ex * ex * scale), np.exp(ey * ey * scale)
+        shape = (n, side, 3)
+        cols = self._axis[: n * side * 3].reshape(shape)
+        rows = self._rows[: n * side * 3].reshape(shape)
+        np.copyto(cols[..., 0], gx)
+        np.multiply(gx, ex, out=cols[..., 1])
+        np.multiply(cols[..., 1], ex, out=cols[..., 2])
+        np.matmul(v["s"].reshape(n, side, side), cols, out=rows)  # S (gx, gx ex, gx ex^2)
+        gy_ey = gy * ey
+        np.einsum("ij,ij->i", gy, rows[..., 0], out=p["s0"])
+        denom = np.maximum(p["s0"], 1e-12)
         if not second:
-            s0 = np.maximum(p["s0"], 1e-12)
-            np.einsum("ij,ij->i", w, ex, out=p["mxx"])
-            np.einsum("ij,ij->i", w, ey, out=p["myy"])
-            p["mxx"] /= s0
-            p["myy"] /= s0
+            np.einsum("ij,ij->i", gy, rows[..., 1], out=p["mxx"])
+            np.einsum("ij,ij->i", gy_ey, rows[..., 0], out=p["myy"])
+            p["mxx"] /= denom
+            p["myy"] /= denom
             return
-        second_moments(w, ex, ey, t, p["s0"], p)
+        np.einsum("ij,ij->i", gy, rows[..., 2], out=p["mxx"])
+        np.einsum("ij,ij->i", gy_ey, rows[..., 1], out=p["mxy"])
+        np.einsum("ij,ij->i", gy_ey * ey, rows[..., 0], out=p["myy"])
+        for key in ("mxx", "myy", "mxy"):
+            np.divide(p[key], denom, out=p[key])
 
 
 def _deconvolve_weight(p: dict) -> None:
@@ -315,8 +328,9 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
     log_s = np.log(sigma)
     # densest bin of width _BIN, sliding in steps of a quarter bin
     starts = np.arange(log_s.min() - _BIN, log_s.max() + _BIN / 4, _BIN / 4)
-    counts = [(np.count_nonzero((log_s >= a) & (log_s < a + _BIN)), a) for a in starts]
-    best = max(counts)[1] + _BIN / 2
+    counts = np.count_nonzero((log_s[None, :] >= starts[:, None])
+                              & (log_s[None, :] < starts[:, None] + _BIN), axis=1)
+    best = starts[len(starts) - 1 - np.argmax(counts[::-1])] + _BIN / 2  # ties: the last
     agree = np.abs(log_s - best) <= _AGREE
     if np.count_nonzero(agree) < min_stars:
         return None
