@@ -85,6 +85,7 @@ from tracker.detect.psf import (
     pixel_tensor_to_optics,
 )
 from tracker.detect.result import Detections, StarFlag
+from tracker.detect.sigma_steps import SigmaSteps
 from tracker.detect.slabs import SlabRunner
 from tracker.detect.stars import StarTable
 from tracker.detect.surroundings import Surroundings, sky_noise_model
@@ -141,6 +142,11 @@ _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its ta
 def effective_sigma(psf_sigma_px: float) -> float:
     """Sigma of a Gaussian PSF after integration over a square pixel, px."""
     return math.sqrt(psf_sigma_px ** 2 + 1.0 / 12.0)
+
+
+def _sigma_step_of(sigma_px: float) -> int:
+    """The step (of ``_SIGMA_STEP``) a PSF sigma of ``sigma_px`` is used at."""
+    return int(round(math.log(sigma_px) / _SIGMA_STEP))
 
 
 def _far_ring(sigma_px: float) -> int:
@@ -305,6 +311,8 @@ class DefaultDetector:
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
                          "sharp_spots": 0, "masked": 0, "candidates": 0, "left_out": 0}
         self._sigma_step = None
+        self.steps = SigmaSteps(_sigma_step_of(SIGMA_MIN_PX), _sigma_step_of(SIGMA_MAX_PX), 5,
+                                _kernel_half(SIGMA_MAX_PX))
         self._configure(cfg.psf_sigma_px)
 
     def _configure(self, sigma_px: float) -> None:
@@ -315,11 +323,14 @@ class DefaultDetector:
         the PSF has moved more than one and a half steps from the one they
         were built for: a PSF wandering by a few per cent from frame to
         frame leaves the kernels, windows and their buffers as they are.
+        The constants that take some arithmetic (thresholds, contrasts, the
+        point source's roughness, the filter's gain at the borders) come
+        from ``self.steps``, computed once per step.
         """
         position = math.log(sigma_px) / _SIGMA_STEP
         if self._sigma_step is not None and abs(position - self._sigma_step) <= 1.5:
             return
-        step = int(round(position))
+        step = _sigma_step_of(sigma_px)
         self._sigma_step = step
         sigma_px = math.exp(step * _SIGMA_STEP)
         self.psf_sigma_used = sigma_px
@@ -331,11 +342,6 @@ class DefaultDetector:
         k = 2 * _kernel_half(sigma_px) + 1
         self.ksize = (k, k)
         kernel = cv2.getGaussianKernel(k, sigma, cv2.CV_64F).ravel()
-        # filtered / pixel noise for white noise: sqrt of the 2-D kernel's sum of squares
-        self.filter_gain = float(np.sum(kernel ** 2))
-        self.edge_gain = _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols)
-        self.peak_threshold = gaussian_peak_threshold(
-            self.cfg.false_alarms_per_frame, self.layout.rows * self.layout.cols, kernel)
         self.tail.configure(kernel)
         self.peaks.configure(blend)
         self.centroider.configure(self.radius, sigma)
@@ -344,14 +350,29 @@ class DefaultDetector:
             self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
         self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
         self.surroundings.configure(int(math.ceil(_SKY_RING_SIGMAS * sigma)))
+        (self.filter_gain, self.peak_threshold, self.impulse_contrast, self.impulse_ring,
+         self.point_roughness), self.edge_gain = self.steps.get(
+            step, lambda: self._step_constants(sigma_px, kernel))
+
+    def _step_constants(self, sigma_px: float,
+                        kernel: np.ndarray) -> tuple[tuple, tuple[np.ndarray, np.ndarray]]:
+        """The PSF's constants for ``_configure`` (PSF sigma ``sigma_px``, matched filter
+        ``kernel``; the centroider configured for it): (filter gain, Gaussian peak
+        threshold, impulse contrast, impulse ring, point roughness), (edge gains)."""
+        # filtered / pixel noise for white noise: sqrt of the 2-D kernel's sum of squares
+        filter_gain = float(np.sum(kernel ** 2))
+        peak_threshold = gaussian_peak_threshold(
+            self.cfg.false_alarms_per_frame, self.layout.rows * self.layout.cols, kernel)
         # halfway between an impulse's contrast over its 3x3 median and that of a centred
         # star a tenth sharper than the PSF at its sharpest sub-pixel phase
-        self.impulse_contrast = 0.5 * (1.0 + psf_contrast(_IMPULSE_PSF_MARGIN * sigma_px,
-                                                          worst_phase=True))
-        self.point_roughness = _point_roughness(self.centroider, sigma_px)
+        impulse_contrast = 0.5 * (1.0 + psf_contrast(_IMPULSE_PSF_MARGIN * sigma_px,
+                                                     worst_phase=True))
         # a hot pixel's neighbours hold noise; those of a star a tenth sharper than the
         # PSF, at its sharpest phase, more than twice this
-        self.impulse_ring = 0.5 * psf_ring(_IMPULSE_PSF_MARGIN * sigma_px)
+        impulse_ring = 0.5 * psf_ring(_IMPULSE_PSF_MARGIN * sigma_px)
+        point_roughness = _point_roughness(self.centroider, sigma_px)
+        return ((filter_gain, peak_threshold, impulse_contrast, impulse_ring, point_roughness),
+                _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols))
 
     def _noise_f_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
         return self.grid.at(self.noise_f, flat, out)
