@@ -136,9 +136,16 @@ class PsfMeter:
         self._raw = np.zeros(c * k, np.uint16)
         self._bgwin = np.zeros(c * k, np.float32)
         self.last_cand, self.last_n, self.last_good = np.zeros(0, np.intp), 0, np.zeros(0, bool)
-        self.per_star = {name: np.zeros(c, np.float64) for name in (
-            "x", "y", "w2", "s0", "mxx", "myy", "mxy", "cxx", "cyy", "cxy", "ring", "peak",
-            "raw_peak")}
+        # one row per quantity; x and y, and mxx and myy, adjacent so that both axes
+        # are worked on in one call
+        names = ("x", "y", "mxx", "myy", "w2", "s0", "mxy", "cxx", "cyy", "cxy", "ring",
+                 "peak", "raw_peak", "scale")
+        self._per_star = np.zeros((len(names), c), np.float64)
+        self.per_star = dict(zip(names, self._per_star, strict=True))
+        self._e = np.zeros(2 * c * side, np.float64)      # column and row offsets
+        self._g = np.zeros(2 * c * side, np.float64)      # their Gaussian weights
+        self._gy_e = np.zeros(2 * c * side, np.float64)   # gy ey, gy ey^2
+        self._axes = {r: np.arange(-r, r + 1, dtype=np.float64) for r in range(self.radius + 1)}
 
     def _window(self, radius: int) -> tuple:
         """(offsets, r) of a window of ``radius``: padded flat offsets and the distance
@@ -264,14 +271,19 @@ class PsfMeter:
         First moments are stored as mxx = sum(W S ex) / S0 and myy likewise.
         The Gaussian weight is separable, W = gy(row) gx(col), so each sum is
         gy-weighted over rows of S times one of gx, gx ex, gx ex^2 (one
-        batched matrix product over the windows' pixels).
+        batched matrix product over the windows' pixels); the two axes'
+        offsets and weights are computed together.
         """
         n, side = len(p["x"]), 2 * radius + 1
-        axis = np.arange(-radius, radius + 1, dtype=np.float64)
-        ex = axis[None, :] - p["x"][:, None]                # (n, side): column offsets
-        ey = axis[None, :] - p["y"][:, None]                # row offsets
-        scale = (-0.5 / p["w2"])[:, None]
-        gx, gy = np.exp(ex * ex * scale), np.exp(ey * ey * scale)
+        e = self._e[: 2 * n * side].reshape(2, n, side)     # (ex, ey): column, row offsets
+        np.subtract(self._axes[radius], self._per_star[0:2, :n, None], out=e)
+        g = self._g[: 2 * n * side].reshape(2, n, side)     # (gx, gy)
+        scale = p["scale"]
+        np.divide(-0.5, p["w2"], out=scale)
+        np.multiply(e, e, out=g)
+        np.multiply(g, scale[:, None], out=g)
+        np.exp(g, out=g)
+        (ex, ey), (gx, gy) = e, g
         shape = (n, side, 3)
         cols = self._axis[: n * side * 3].reshape(shape)
         rows = self._rows[: n * side * 3].reshape(shape)
@@ -279,20 +291,23 @@ class PsfMeter:
         np.multiply(gx, ex, out=cols[..., 1])
         np.multiply(cols[..., 1], ex, out=cols[..., 2])
         np.matmul(v["s"].reshape(n, side, side), cols, out=rows)  # S (gx, gx ex, gx ex^2)
-        gy_ey = gy * ey
-        np.einsum("ij,ij->i", gy, rows[..., 0], out=p["s0"])
+        gy_e = self._gy_e[: 2 * n * side].reshape(2, n, side)  # (gy ey, gy ey^2)
+        np.multiply(gy, ey, out=gy_e[0])
+        by_gy = np.einsum("ij,ijk->ik", gy, rows)   # S0, sum(W S ex), sum(W S ex^2)
+        p["s0"][:] = by_gy[:, 0]
         denom = np.maximum(p["s0"], 1e-12)
+        moments = self._per_star[2:4, :n]            # (mxx, myy)
         if not second:
-            np.einsum("ij,ij->i", gy, rows[..., 1], out=p["mxx"])
-            np.einsum("ij,ij->i", gy_ey, rows[..., 0], out=p["myy"])
-            p["mxx"] /= denom
-            p["myy"] /= denom
+            moments[0] = by_gy[:, 1]
+            np.einsum("ij,ij->i", gy_e[0], rows[..., 0], out=p["myy"])
+            np.divide(moments, denom, out=moments)
             return
-        np.einsum("ij,ij->i", gy, rows[..., 2], out=p["mxx"])
-        np.einsum("ij,ij->i", gy_ey, rows[..., 1], out=p["mxy"])
-        np.einsum("ij,ij->i", gy_ey * ey, rows[..., 0], out=p["myy"])
-        for key in ("mxx", "myy", "mxy"):
-            np.divide(p[key], denom, out=p[key])
+        np.multiply(gy_e[0], ey, out=gy_e[1])
+        moments[0] = by_gy[:, 2]
+        np.einsum("ij,ij->i", gy_e[0], rows[..., 1], out=p["mxy"])
+        np.einsum("ij,ij->i", gy_e[1], rows[..., 0], out=p["myy"])
+        np.divide(moments, denom, out=moments)
+        np.divide(p["mxy"], denom, out=p["mxy"])
 
 
 def _deconvolve_weight(p: dict) -> None:
