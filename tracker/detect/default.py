@@ -49,10 +49,12 @@ handled, sigma 3.5 px):
    and candidates that end within 2 PSF sigma of a brighter one are
    dropped as its duplicates.
 
-The median of step 3, the float copy and Gaussian of step 5 and the
-threshold tests of steps 4 and 6 run in ``detect.threads`` horizontal slabs
-at once (tracker.detect.slabs; the result does not depend on the thread
-count).
+The float copy and Gaussian of step 5 and the threshold tests of steps 4
+and 6 run in ``detect.threads`` horizontal slabs at once
+(tracker.detect.slabs; the result does not depend on the thread count).
+With more than one thread the median of step 3 runs on a worker thread
+while step 2 works out the background (it needs only the frame), so the
+``background`` stage's time includes it and ``impulses`` does not.
 
 ``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
 found in steps 3-4 plus sharp spots from step 7), sharp_spots, candidates,
@@ -390,6 +392,7 @@ class DefaultDetector:
             return self.table.result(0, reason, self.counters, timer.ms)
         if self.speckle_fit is not None:
             np.copyto(self.delivered_pad, self.input.padded)
+        self.impulses.start_median(self.input.work)   # step 3's median, beside step 2
         timer.start("background")
         grid = self.grid
         grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,

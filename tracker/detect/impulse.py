@@ -170,6 +170,13 @@ class ImpulseFilter:
         self.any_before = np.zeros(self.capacity, np.uint8)
         self.any_after = np.zeros(self.capacity, np.uint8)
         self.counts = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0}
+        self._median_wait = None
+
+    def start_median(self, work: np.ndarray) -> None:
+        """Begin the 3x3 median of ``work`` (the frame :meth:`run` will be given, already
+        final) on a worker thread, for :meth:`run` to collect: the caller's other work
+        (the background's statistics) overlaps it. Same median as :meth:`run` makes."""
+        self._median_wait = self.slabs.start(_median3, work, self.median)
 
     def run(self, work_pad: np.ndarray, work: np.ndarray, bg_pad: np.ndarray,
             limit_pad: np.ndarray, limit: np.ndarray) -> dict:
@@ -184,7 +191,11 @@ class ImpulseFilter:
             counts[key] = 0
         self._n = 0
         self._dense = False
-        self.slabs.run(_median3, work, self.median)
+        if self._median_wait is None:
+            self.slabs.run(_median3, work, self.median)
+        else:
+            self._median_wait()
+            self._median_wait = None
         self.slabs.rows(lambda a, b: self._first_cut(work[a:b], limit[a:b], a, b))
         n = self.layout.nonzero(self.mask_pad, self.index)
         if n == 0:
