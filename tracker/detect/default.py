@@ -146,6 +146,10 @@ def effective_sigma(psf_sigma_px: float) -> float:
     return math.sqrt(psf_sigma_px ** 2 + 1.0 / 12.0)
 
 
+def _copy(src: np.ndarray, dst: np.ndarray) -> None:
+    np.copyto(dst, src)
+
+
 def _sigma_step_of(sigma_px: float) -> int:
     """The step (of ``_SIGMA_STEP``) a PSF sigma of ``sigma_px`` is used at."""
     return int(round(math.log(sigma_px) / _SIGMA_STEP))
@@ -246,7 +250,7 @@ class DefaultDetector:
         # impulse_sigma times the pixel noise in whole ADU, like the differences it bounds
         self.limit_pad, self.impulse_limit = layout.buffer(np.uint16)
         self.bright_pad, self.bright_threshold = layout.buffer(np.uint16)  # the PSF stage's
-        self.work_float = np.zeros(self.input.shape, np.float32)  # the filter's input
+        self.float_pad, self.work_float = layout.buffer(np.float32)  # the filter's input
         self.filt_pad, self.filt = layout.buffer(np.float32)
         self.threshold = np.zeros(self.input.shape, np.float32)  # background included, ADU
         # An impulse is sharper than the sharpest PSF the detector is made for (0.55 px,
@@ -410,6 +414,9 @@ class DefaultDetector:
         timer.start("impulses")
         self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
                                                self.limit_pad, self.impulse_limit))
+        # the filter's float copy, beside the PSF's measurement; the second impulse pass
+        # then rewrites the pixels it changes in both
+        self._float_wait = self.filter_slabs.start(_copy, self.input.work, self.work_float)
         timer.start("psf")
         self.psf = self.psf_tracker.update(self._measure_psf() if self.cfg.psf_measure
                                            else None)
@@ -442,8 +449,10 @@ class DefaultDetector:
         contrast = (self.cfg.impulse_contrast if self.cfg.impulse_contrast is not None
                     else self.impulse_contrast if measured else self.impulses.contrast)
         ring = self.impulse_ring if measured else _SHARPEST_RING
+        self._float_wait()
         self.counters.update(self.impulses.refine(self.input.padded, self.bg_pad,
-                                                  self.limit_pad, contrast, ring))
+                                                  self.limit_pad, contrast, ring,
+                                                  mirror_pad=self.float_pad))
 
     def _mark_dark_side(self) -> bool:
         """Mark the tiles that straddle the edge of a bright body; whether there are any.
@@ -503,7 +512,6 @@ class DefaultDetector:
         """Filter, threshold, peaks and centroids with the PSF configured; star count."""
         timer, grid = self.timer, self.grid
         timer.start("filter")
-        self.filter_slabs.rows(self._to_float)
         self.filter_slabs.run(self._matched_filter, self.work_float, self.filt)
         grid.stats(self.filt_pad, self.residual, self.noise_f,
                    QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=self.bg_pad,
@@ -650,9 +658,6 @@ class DefaultDetector:
 
     def _noise_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
         return self.grid.at(self.noise, flat, out)
-
-    def _to_float(self, a: int, b: int) -> None:
-        np.copyto(self.work_float[a:b], self.input.work[a:b])
 
     def _matched_filter(self, src: np.ndarray, dst: np.ndarray) -> None:
         cv2.GaussianBlur(src, self.ksize, self.sigma, dst=dst, borderType=cv2.BORDER_REFLECT)
