@@ -197,18 +197,3 @@ def test_stars_trailed_across_the_frame_are_not_taken_for_tracks():
     assert np.all(_nearest(xs, ys, result.stars) < 1.0)
     assert result.counters["cosmic_rays"] == 0
 
-
-def test_sky_model_percentiles_are_numpys_to_the_last_bit():
-    """tracker.detect.surroundings takes its percentiles by a partial sort; they are
-    np.percentile's own floats, for tile counts of one to thousands, ties and NaN."""
-    from tracker.detect.surroundings import _percentile
-
-    rng = np.random.default_rng(31)
-    for n in [*range(1, 40), 2050]:
-        for _ in range(10):
-            values = rng.standard_normal(n) * 10 ** rng.uniform(-3, 3)
-            if rng.random() < 0.3:
-                values = np.round(values)                 # ties
-            for q in (10.0, 25.0, 50.0, 84.13):
-                assert _percentile(values, q) == float(np.percentile(values, q)), (n, q)
-    assert np.isnan(_percentile(np.array([1.0, np.nan, 3.0]), 10.0))

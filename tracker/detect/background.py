@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from tracker.detect.layout import PaddedLayout
+from tracker.detect.order import median
 from tracker.normal import erf
 
 __all__ = ["BackgroundGrid", "QUANTISATION_NOISE_ADU"]
@@ -202,7 +203,7 @@ class BackgroundGrid:
         np.sqrt(self.moment2, out=self.spread3)
         np.multiply(self.spread3, self.moment2, out=self.spread3)
         np.divide(self.moment3, self.spread3, out=self.spread3)
-        return float(np.median(self.spread3[self.star_free]))
+        return median(self.spread3[self.star_free])
 
     def _smooth(self, src: np.ndarray, dst: np.ndarray) -> None:
         if min(self.grid_shape) >= 3:

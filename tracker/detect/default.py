@@ -77,6 +77,7 @@ from tracker.detect.frame_input import FrameInput, Reason
 from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.multiplicative import MultiplicativeFit
+from tracker.detect.order import median
 from tracker.detect.peaks import PeakFinder
 from tracker.detect.psf import (
     SIGMA_MAX_PX,
@@ -835,7 +836,7 @@ class DefaultDetector:
         reference = self.point_roughness
         bright = star_like & (v["snr"] >= _ROUGH_REFERENCE_SNR)
         if np.count_nonzero(bright) >= 5:
-            reference = max(reference, float(np.median(v["rough"][bright])))
+            reference = max(reference, median(v["rough"][bright]))
         return reference
 
     def _broad(self, v: dict, sharp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -857,7 +858,7 @@ class DefaultDetector:
         if np.count_nonzero(unsat) < 5:
             return none, none
         area = v["flux"] / np.maximum(v["peak"], 1e-12)
-        reference = float(np.median(area[unsat]))
+        reference = median(area[unsat])
         return (unsat & (area > self.cfg.extended_ratio * reference),
                 unsat & (area > self.cfg.body_ratio * reference))
 

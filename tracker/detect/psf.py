@@ -51,6 +51,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tracker.detect.order import median
+
 __all__ = ["PsfEstimate", "PsfMeter", "PsfTracker", "SIGMA_MIN_PX", "SIGMA_MAX_PX",
            "FWHM_PER_SIGMA", "pixel_tensor_to_optics", "combine_stars"]
 
@@ -183,7 +185,7 @@ class PsfMeter:
         p["w2"].fill(max(sigma_start ** 2 + PIXEL_VARIANCE, _MIN_WEIGHT_PX ** 2))
         first = min(n, _SCOUTS)
         self._iterate(first, self.radius, image_pad, bg_pad, cand, p, _SCOUT_ITERATIONS)
-        w_typical = float(np.sqrt(np.median(p["w2"][:first])))
+        w_typical = math.sqrt(median(p["w2"][:first]))
         p["w2"].fill(w_typical ** 2)
         radius = min(self.radius, int(math.ceil(_RING[1] * w_typical * _RING_MARGIN)) + 1)
         view = self._iterate(n, radius, image_pad, bg_pad, cand, p, _ITERATIONS)
@@ -349,7 +351,7 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
     agree = np.abs(log_s - best) <= _AGREE
     if np.count_nonzero(agree) < min_stars:
         return None
-    sel = (np.median(cxx[agree]), np.median(cyy[agree]), np.median(cxy[agree]))
+    sel = (median(cxx[agree]), median(cyy[agree]), median(cxy[agree]))
     s_opt, e_opt, angle = pixel_tensor_to_optics(*sel)
     m = int(np.count_nonzero(agree))
     if not np.isfinite(s_opt):
@@ -358,7 +360,7 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
     # stars' robust spread (when the mode is picked among noisy values, the stars
     # near it understate how far it can wander)
     spread = max(float(np.std(sigma[agree])) / math.sqrt(m),
-                 1.4826 * float(np.median(np.abs(sigma - np.median(sigma))))
+                 1.4826 * median(np.abs(sigma - median(sigma)))
                  / math.sqrt(len(sigma)), 0.01 * float(s_opt) / math.sqrt(m))
     return PsfEstimate(float(np.clip(s_opt, SIGMA_MIN_PX, SIGMA_MAX_PX)), float(e_opt),
                        float(angle), m, 1.25 * spread)

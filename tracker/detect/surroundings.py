@@ -34,6 +34,8 @@ import math
 
 import numpy as np
 
+from tracker.detect.order import percentile
+
 __all__ = ["Surroundings", "sky_noise_model"]
 
 _SECTORS = 8
@@ -59,31 +61,13 @@ def sky_noise_model(level: np.ndarray, noise: np.ndarray,
         live[:] = True
     level = np.asarray(level, np.float64).ravel()[live]
     var = np.square(np.asarray(noise, np.float64).ravel()[live])
-    level0 = _percentile(level, 10.0)
-    var0 = _percentile(var, 10.0)
+    level0 = percentile(level, 10.0)
+    var0 = percentile(var, 10.0)
     brighter = level - level0 > 5.0 * math.sqrt(max(var0, 1e-12))
     if np.count_nonzero(brighter) < 8:
         return level0, var0, 0.0
     ratio = (var[brighter] - var0) / (level[brighter] - level0)
-    return level0, var0, max(0.0, _percentile(ratio, 25.0))
-
-
-def _percentile(values: np.ndarray, q: float) -> float:
-    """np.percentile(values, q) of a 1-D float64 array (its linear method, the same
-    arithmetic and so the same float), without its Python layers: two order
-    statistics by a partial sort and numpy's interpolation between them."""
-    n = len(values)
-    virtual = (n - 1) * (q / 100.0)
-    if n == 1:
-        return float(values[0])
-    below = math.floor(virtual)
-    part = np.partition(values, (below, below + 1, n - 1))
-    if math.isnan(part[-1]):
-        return math.nan
-    a, b = float(part[below]), float(part[below + 1])
-    t = virtual - below
-    step = b - a
-    return b - step * (1.0 - t) if t >= 0.5 else a + step * t
+    return level0, var0, max(0.0, percentile(ratio, 25.0))
 
 
 class _Ring:
