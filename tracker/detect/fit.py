@@ -154,13 +154,16 @@ class PixelGaussianFit:
             self._normal_equations(m, fx, dfx, fy, dfy, flux, v)
             det = np.linalg.det(normal)
             good = np.isfinite(det) & (det > 0)
-            if not np.any(good):
+            if not good.any():
                 break
             if good.all():   # the usual case: every star steps, no gathering
                 step = np.linalg.solve(normal, grad[..., None])[..., 0]
-                np.clip(x + step[:, 0], -max_shift, max_shift, out=x)
-                np.clip(y + step[:, 1], -max_shift, max_shift, out=y)
-                np.maximum(flux + step[:, 2], 1.0, out=flux)
+                for pos, axis_step in ((x, step[:, 0]), (y, step[:, 1])):
+                    np.add(pos, axis_step, out=pos)
+                    np.maximum(pos, -max_shift, out=pos)
+                    np.minimum(pos, max_shift, out=pos)
+                np.add(flux, step[:, 2], out=flux)
+                np.maximum(flux, 1.0, out=flux)
                 continue
             step = np.linalg.solve(normal[good], grad[good][..., None])[..., 0]
             x[good] = np.clip(x[good] + step[:, 0], -max_shift, max_shift)

@@ -141,9 +141,10 @@ class PsfMeter:
         # one row per quantity; x and y, and mxx and myy, adjacent so that both axes
         # are worked on in one call
         names = ("x", "y", "mxx", "myy", "w2", "s0", "mxy", "cxx", "cyy", "cxy", "ring",
-                 "peak", "raw_peak", "scale")
+                 "peak", "raw_peak", "scale", "move_x", "move_y")
         self._per_star = np.zeros((len(names), c), np.float64)
         self.per_star = dict(zip(names, self._per_star, strict=True))
+        self._move = names.index("move_x")   # move_x, move_y: scratch for (x, y) steps
         self._e = np.zeros(2 * c * side, np.float64)      # column and row offsets
         self._g = np.zeros(2 * c * side, np.float64)      # their Gaussian weights
         self._gy_e = np.zeros(2 * c * side, np.float64)   # gy ey, gy ey^2
@@ -232,17 +233,24 @@ class PsfMeter:
         q = {name: arr[:n] for name, arr in p.items()}
         q["x"].fill(0.0)
         q["y"].fill(0.0)
+        xy, moments, move = (self._per_star[rows, :n] for rows in (
+            slice(0, 2), slice(2, 4), slice(self._move, self._move + 2)))
+        w2 = q["w2"]
         for _ in range(iterations):
             self._weighted(q, v, radius)
-            # move to the weighted centroid (gain 2: exact when the weight matches the spot)
-            np.clip(q["x"] + 2.0 * q["mxx"], -1.5, 1.5, out=q["x"])  # mxx: sum(W S ex) / S0
-            np.clip(q["y"] + 2.0 * q["myy"], -1.5, 1.5, out=q["y"])
+            # move to the weighted centroid (gain 2: exact when the weight matches the
+            # spot); mxx, myy hold sum(W S ex) / S0, sum(W S ey) / S0
+            np.multiply(moments, 2.0, out=move)
+            np.add(xy, move, out=xy)
+            np.maximum(xy, -1.5, out=xy)
+            np.minimum(xy, 1.5, out=xy)
             self._weighted(q, v, radius, second=True)
             _deconvolve_weight(q)
-            np.add(q["cxx"], q["cyy"], out=q["w2"])
-            np.multiply(q["w2"], 0.5, out=q["w2"])
-            np.nan_to_num(q["w2"], copy=False, nan=_MIN_WEIGHT_PX ** 2)
-            np.clip(q["w2"], _MIN_WEIGHT_PX ** 2, (1.2 * SIGMA_MAX_PX) ** 2, out=q["w2"])
+            np.add(q["cxx"], q["cyy"], out=w2)
+            np.multiply(w2, 0.5, out=w2)
+            np.copyto(w2, _MIN_WEIGHT_PX ** 2, where=np.isnan(w2))
+            np.maximum(w2, _MIN_WEIGHT_PX ** 2, out=w2)
+            np.minimum(w2, (1.2 * SIGMA_MAX_PX) ** 2, out=w2)
         self._weighted(q, v, radius, second=True)
         _deconvolve_weight(q)
         return v
@@ -331,7 +339,7 @@ def _deconvolve_weight(p: dict) -> None:
         np.divide(a, det_c, out=p["cyy"])
         np.divide(-c, det_c, out=p["cxy"])
     for key in ("cxx", "cyy", "cxy"):
-        p[key][bad] = np.nan
+        np.copyto(p[key], np.nan, where=bad)
 
 
 def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstimate | None:
