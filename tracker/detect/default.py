@@ -49,12 +49,15 @@ handled, sigma 3.5 px):
    and candidates that end within 2 PSF sigma of a brighter one are
    dropped as its duplicates.
 
-The float copy and Gaussian of step 5 and the threshold tests of steps 4
-and 6 run in ``detect.threads`` horizontal slabs at once
-(tracker.detect.slabs; the result does not depend on the thread count).
-With more than one thread the median of step 3 runs on a worker thread
-while step 2 works out the background (it needs only the frame), so the
-``background`` stage's time includes it and ``impulses`` does not.
+The Gaussian of step 5 and the threshold tests of steps 4 and 6 run in
+``detect.threads`` horizontal slabs at once (tracker.detect.slabs; the
+result does not depend on the thread count). With more than one thread two
+full-frame passes also run on a worker thread beside Python work that does
+not need them: the median of step 3 while step 2 works out the background
+(it needs only the frame; the ``background`` stage's time includes it and
+``impulses`` does not), and the float copy of step 5 while step 4 measures
+the PSF (the impulses' second pass then rewrites the pixels it changes in
+both copies).
 
 ``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
 found in steps 3-4 plus sharp spots from step 7), sharp_spots, candidates,

@@ -236,6 +236,16 @@ class PsfMeter:
         xy, moments, move = (self._per_star[rows, :n] for rows in (
             slice(0, 2), slice(2, 4), slice(self._move, self._move + 2)))
         w2 = q["w2"]
+        with np.errstate(invalid="ignore", divide="ignore"):   # for _deconvolve_weight
+            self._adapt(q, v, radius, iterations, xy, moments, move, w2)
+            self._weighted(q, v, radius, second=True)
+            _deconvolve_weight(q)
+        return v
+
+    def _adapt(self, q: dict, v: dict, radius: int, iterations: int, xy: np.ndarray,
+               moments: np.ndarray, move: np.ndarray, w2: np.ndarray) -> None:
+        """The adaptive iterations of :meth:`_iterate`: centre, then weight, ``iterations``
+        times (``xy``, ``moments``, ``move``: (2, n) views of the per-star table)."""
         for _ in range(iterations):
             self._weighted(q, v, radius)
             # move to the weighted centroid (gain 2: exact when the weight matches the
@@ -251,9 +261,6 @@ class PsfMeter:
             np.copyto(w2, _MIN_WEIGHT_PX ** 2, where=np.isnan(w2))
             np.maximum(w2, _MIN_WEIGHT_PX ** 2, out=w2)
             np.minimum(w2, (1.2 * SIGMA_MAX_PX) ** 2, out=w2)
-        self._weighted(q, v, radius, second=True)
-        _deconvolve_weight(q)
-        return v
 
     def _isolated(self, n: int, radius: int, v: dict, p: dict, noise: np.ndarray,
                   saturation: float) -> np.ndarray:
@@ -324,20 +331,19 @@ def _deconvolve_weight(p: dict) -> None:
     """cxx, cyy, cxy = (M^-1 - I / w^2)^-1: the spot's covariance from its weighted moments.
 
     NaN where that is not a covariance (noise, or a spot broader than the
-    model allows).
+    model allows). The caller silences numpy's warnings for the divisions.
     """
     mxx, myy, mxy = p["mxx"], p["myy"], p["mxy"]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        det_m = mxx * myy - mxy * mxy
-        inv_w2 = 1.0 / p["w2"]
-        a = myy / det_m - inv_w2
-        b = mxx / det_m - inv_w2
-        c = -mxy / det_m
-        det_c = a * b - c * c
-        bad = ~((det_m > 0) & (det_c > 0) & (a > 0))
-        np.divide(b, det_c, out=p["cxx"])
-        np.divide(a, det_c, out=p["cyy"])
-        np.divide(-c, det_c, out=p["cxy"])
+    det_m = mxx * myy - mxy * mxy
+    inv_w2 = 1.0 / p["w2"]
+    a = myy / det_m - inv_w2
+    b = mxx / det_m - inv_w2
+    c = -mxy / det_m
+    det_c = a * b - c * c
+    bad = ~((det_m > 0) & (det_c > 0) & (a > 0))
+    np.divide(b, det_c, out=p["cxx"])
+    np.divide(a, det_c, out=p["cyy"])
+    np.divide(-c, det_c, out=p["cxy"])
     for key in ("cxx", "cyy", "cxy"):
         np.copyto(p[key], np.nan, where=bad)
 
