@@ -196,4 +196,3 @@ def test_stars_trailed_across_the_frame_are_not_taken_for_tracks():
     assert result.psf_ellipticity > 0.4
     assert np.all(_nearest(xs, ys, result.stars) < 1.0)
     assert result.counters["cosmic_rays"] == 0
-
