@@ -363,3 +363,21 @@ def test_multiplicative_noise_centroid_nears_the_bound_on_speckle():
     limit = float(np.sqrt(np.mean(bound ** 2)))
     assert rms["multiplicative"] < 1.3 * limit, (rms, limit)
     assert rms["multiplicative"] < 0.5 * rms["additive"], (rms, limit)
+
+
+def test_psf_constants_kept_per_step_equal_those_computed_afresh():
+    """A PSF that moves away and back reuses its step's constants (tracker.detect.sigma_steps):
+    the same thresholds, contrasts and border gains as a detector started at that PSF."""
+    shape = (200, 240)
+    moving = make_detector(CFG, shape, 10)
+    names = ("filter_gain", "peak_threshold", "impulse_contrast", "impulse_ring",
+             "point_roughness")
+    for sigma in (0.7, 2.9, 1.6, 0.7):
+        moving._configure(sigma)
+        fresh = make_detector(dataclasses.replace(CFG, psf_sigma_px=sigma), shape, 10)
+        assert moving.psf_sigma_used == fresh.psf_sigma_used
+        for name in names:
+            assert getattr(moving, name) == getattr(fresh, name), name
+        for ours, theirs in zip(moving.edge_gain, fresh.edge_gain, strict=True):
+            assert ours.dtype == np.float32 and np.array_equal(ours, theirs)
+    assert np.count_nonzero(moving.steps.known) == 4   # 1.2 (the start), 0.7, 2.9, 1.6

@@ -289,9 +289,10 @@ class DetectConfig:
     max_pixels_above: int = knob(262144, "default: pixels above threshold examined per "
                                  "frame; more raise the threshold (reason 'crowded')",
                                  "pixels", min=1, max=100000000)
-    threads: int = knob(2, "default: threads sharing the full-frame median and Gaussian "
-                        "filters, in horizontal slabs (1 = the calling thread alone; the Pi 5 "
-                        "has 4 cores)", "threads", min=1, max=16)
+    threads: int = knob(2, "default: threads sharing the full-frame passes: the Gaussian "
+                        "filter and threshold tests in horizontal slabs, the median and the "
+                        "float copy on a worker beside the Python work (1 = the calling "
+                        "thread alone; the Pi 5 has 4 cores)", "threads", min=1, max=16)
     opencv_threads: int = knob(1, "threads OpenCV's own parallel loops may use inside each "
                                "call (cv2.setNumThreads, for the whole process): 1 = none, "
                                "the slabs above being the detector's parallelism (a pool "

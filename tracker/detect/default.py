@@ -49,10 +49,15 @@ handled, sigma 3.5 px):
    and candidates that end within 2 PSF sigma of a brighter one are
    dropped as its duplicates.
 
-The median of step 3, the float copy and Gaussian of step 5 and the
-threshold tests of steps 4 and 6 run in ``detect.threads`` horizontal slabs
-at once (tracker.detect.slabs; the result does not depend on the thread
-count).
+The Gaussian of step 5 and the threshold tests of steps 4 and 6 run in
+``detect.threads`` horizontal slabs at once (tracker.detect.slabs; the
+result does not depend on the thread count). With more than one thread two
+full-frame passes also run on a worker thread beside Python work that does
+not need them: the median of step 3 while step 2 works out the background
+(it needs only the frame; the ``background`` stage's time includes it and
+``impulses`` does not), and the float copy of step 5 while step 4 measures
+the PSF (the impulses' second pass then rewrites the pixels it changes in
+both copies).
 
 ``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
 found in steps 3-4 plus sharp spots from step 7), sharp_spots, candidates,
@@ -75,6 +80,7 @@ from tracker.detect.frame_input import FrameInput, Reason
 from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.multiplicative import MultiplicativeFit
+from tracker.detect.order import median
 from tracker.detect.peaks import PeakFinder
 from tracker.detect.psf import (
     SIGMA_MAX_PX,
@@ -85,6 +91,7 @@ from tracker.detect.psf import (
     pixel_tensor_to_optics,
 )
 from tracker.detect.result import Detections, StarFlag
+from tracker.detect.sigma_steps import SigmaSteps
 from tracker.detect.slabs import SlabRunner
 from tracker.detect.stars import StarTable
 from tracker.detect.surroundings import Surroundings, sky_noise_model
@@ -141,6 +148,15 @@ _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its ta
 def effective_sigma(psf_sigma_px: float) -> float:
     """Sigma of a Gaussian PSF after integration over a square pixel, px."""
     return math.sqrt(psf_sigma_px ** 2 + 1.0 / 12.0)
+
+
+def _copy(src: np.ndarray, dst: np.ndarray) -> None:
+    np.copyto(dst, src)
+
+
+def _sigma_step_of(sigma_px: float) -> int:
+    """The step (of ``_SIGMA_STEP``) a PSF sigma of ``sigma_px`` is used at."""
+    return int(round(math.log(sigma_px) / _SIGMA_STEP))
 
 
 def _far_ring(sigma_px: float) -> int:
@@ -238,7 +254,7 @@ class DefaultDetector:
         # impulse_sigma times the pixel noise in whole ADU, like the differences it bounds
         self.limit_pad, self.impulse_limit = layout.buffer(np.uint16)
         self.bright_pad, self.bright_threshold = layout.buffer(np.uint16)  # the PSF stage's
-        self.work_float = np.zeros(self.input.shape, np.float32)  # the filter's input
+        self.float_pad, self.work_float = layout.buffer(np.float32)  # the filter's input
         self.filt_pad, self.filt = layout.buffer(np.float32)
         self.threshold = np.zeros(self.input.shape, np.float32)  # background included, ADU
         # An impulse is sharper than the sharpest PSF the detector is made for (0.55 px,
@@ -305,6 +321,8 @@ class DefaultDetector:
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
                          "sharp_spots": 0, "masked": 0, "candidates": 0, "left_out": 0}
         self._sigma_step = None
+        self.steps = SigmaSteps(_sigma_step_of(SIGMA_MIN_PX), _sigma_step_of(SIGMA_MAX_PX), 5,
+                                _kernel_half(SIGMA_MAX_PX))
         self._configure(cfg.psf_sigma_px)
 
     def _configure(self, sigma_px: float) -> None:
@@ -315,11 +333,14 @@ class DefaultDetector:
         the PSF has moved more than one and a half steps from the one they
         were built for: a PSF wandering by a few per cent from frame to
         frame leaves the kernels, windows and their buffers as they are.
+        The constants that take some arithmetic (thresholds, contrasts, the
+        point source's roughness, the filter's gain at the borders) come
+        from ``self.steps``, computed once per step.
         """
         position = math.log(sigma_px) / _SIGMA_STEP
         if self._sigma_step is not None and abs(position - self._sigma_step) <= 1.5:
             return
-        step = int(round(position))
+        step = _sigma_step_of(sigma_px)
         self._sigma_step = step
         sigma_px = math.exp(step * _SIGMA_STEP)
         self.psf_sigma_used = sigma_px
@@ -331,11 +352,6 @@ class DefaultDetector:
         k = 2 * _kernel_half(sigma_px) + 1
         self.ksize = (k, k)
         kernel = cv2.getGaussianKernel(k, sigma, cv2.CV_64F).ravel()
-        # filtered / pixel noise for white noise: sqrt of the 2-D kernel's sum of squares
-        self.filter_gain = float(np.sum(kernel ** 2))
-        self.edge_gain = _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols)
-        self.peak_threshold = gaussian_peak_threshold(
-            self.cfg.false_alarms_per_frame, self.layout.rows * self.layout.cols, kernel)
         self.tail.configure(kernel)
         self.peaks.configure(blend)
         self.centroider.configure(self.radius, sigma)
@@ -344,14 +360,29 @@ class DefaultDetector:
             self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
         self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
         self.surroundings.configure(int(math.ceil(_SKY_RING_SIGMAS * sigma)))
+        (self.filter_gain, self.peak_threshold, self.impulse_contrast, self.impulse_ring,
+         self.point_roughness), self.edge_gain = self.steps.get(
+            step, lambda: self._step_constants(sigma_px, kernel))
+
+    def _step_constants(self, sigma_px: float,
+                        kernel: np.ndarray) -> tuple[tuple, tuple[np.ndarray, np.ndarray]]:
+        """The PSF's constants for ``_configure`` (PSF sigma ``sigma_px``, matched filter
+        ``kernel``; the centroider configured for it): (filter gain, Gaussian peak
+        threshold, impulse contrast, impulse ring, point roughness), (edge gains)."""
+        # filtered / pixel noise for white noise: sqrt of the 2-D kernel's sum of squares
+        filter_gain = float(np.sum(kernel ** 2))
+        peak_threshold = gaussian_peak_threshold(
+            self.cfg.false_alarms_per_frame, self.layout.rows * self.layout.cols, kernel)
         # halfway between an impulse's contrast over its 3x3 median and that of a centred
         # star a tenth sharper than the PSF at its sharpest sub-pixel phase
-        self.impulse_contrast = 0.5 * (1.0 + psf_contrast(_IMPULSE_PSF_MARGIN * sigma_px,
-                                                          worst_phase=True))
-        self.point_roughness = _point_roughness(self.centroider, sigma_px)
+        impulse_contrast = 0.5 * (1.0 + psf_contrast(_IMPULSE_PSF_MARGIN * sigma_px,
+                                                     worst_phase=True))
         # a hot pixel's neighbours hold noise; those of a star a tenth sharper than the
         # PSF, at its sharpest phase, more than twice this
-        self.impulse_ring = 0.5 * psf_ring(_IMPULSE_PSF_MARGIN * sigma_px)
+        impulse_ring = 0.5 * psf_ring(_IMPULSE_PSF_MARGIN * sigma_px)
+        point_roughness = _point_roughness(self.centroider, sigma_px)
+        return ((filter_gain, peak_threshold, impulse_contrast, impulse_ring, point_roughness),
+                _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols))
 
     def _noise_f_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
         return self.grid.at(self.noise_f, flat, out)
@@ -369,6 +400,7 @@ class DefaultDetector:
             return self.table.result(0, reason, self.counters, timer.ms)
         if self.speckle_fit is not None:
             np.copyto(self.delivered_pad, self.input.padded)
+        self.impulses.start_median(self.input.work)   # step 3's median, beside step 2
         timer.start("background")
         grid = self.grid
         grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
@@ -386,6 +418,9 @@ class DefaultDetector:
         timer.start("impulses")
         self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
                                                self.limit_pad, self.impulse_limit))
+        # the filter's float copy, beside the PSF's measurement; the second impulse pass
+        # then rewrites the pixels it changes in both
+        self._float_wait = self.filter_slabs.start(_copy, self.input.work, self.work_float)
         timer.start("psf")
         self.psf = self.psf_tracker.update(self._measure_psf() if self.cfg.psf_measure
                                            else None)
@@ -418,8 +453,10 @@ class DefaultDetector:
         contrast = (self.cfg.impulse_contrast if self.cfg.impulse_contrast is not None
                     else self.impulse_contrast if measured else self.impulses.contrast)
         ring = self.impulse_ring if measured else _SHARPEST_RING
+        self._float_wait()
         self.counters.update(self.impulses.refine(self.input.padded, self.bg_pad,
-                                                  self.limit_pad, contrast, ring))
+                                                  self.limit_pad, contrast, ring,
+                                                  mirror_pad=self.float_pad))
 
     def _mark_dark_side(self) -> bool:
         """Mark the tiles that straddle the edge of a bright body; whether there are any.
@@ -479,7 +516,6 @@ class DefaultDetector:
         """Filter, threshold, peaks and centroids with the PSF configured; star count."""
         timer, grid = self.timer, self.grid
         timer.start("filter")
-        self.filter_slabs.rows(self._to_float)
         self.filter_slabs.run(self._matched_filter, self.work_float, self.filt)
         grid.stats(self.filt_pad, self.residual, self.noise_f,
                    QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=self.bg_pad,
@@ -626,9 +662,6 @@ class DefaultDetector:
 
     def _noise_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
         return self.grid.at(self.noise, flat, out)
-
-    def _to_float(self, a: int, b: int) -> None:
-        np.copyto(self.work_float[a:b], self.input.work[a:b])
 
     def _matched_filter(self, src: np.ndarray, dst: np.ndarray) -> None:
         cv2.GaussianBlur(src, self.ksize, self.sigma, dst=dst, borderType=cv2.BORDER_REFLECT)
@@ -806,7 +839,7 @@ class DefaultDetector:
         reference = self.point_roughness
         bright = star_like & (v["snr"] >= _ROUGH_REFERENCE_SNR)
         if np.count_nonzero(bright) >= 5:
-            reference = max(reference, float(np.median(v["rough"][bright])))
+            reference = max(reference, median(v["rough"][bright]))
         return reference
 
     def _broad(self, v: dict, sharp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -828,7 +861,7 @@ class DefaultDetector:
         if np.count_nonzero(unsat) < 5:
             return none, none
         area = v["flux"] / np.maximum(v["peak"], 1e-12)
-        reference = float(np.median(area[unsat]))
+        reference = median(area[unsat])
         return (unsat & (area > self.cfg.extended_ratio * reference),
                 unsat & (area > self.cfg.body_ratio * reference))
 

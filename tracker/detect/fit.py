@@ -60,6 +60,7 @@ class PixelGaussianFit:
         self._normal = np.zeros((self.chunk, 3, 3), np.float64)
         self._grad = np.zeros((self.chunk, 3), np.float64)
         self._flux = np.zeros(self.chunk, np.float64)
+        self._edges = np.zeros(2 * self.chunk * (self.max_side + 1), np.float64)
         self.side = 0
         self.sigma = 0.0
         self.edges = np.zeros(0)
@@ -85,7 +86,12 @@ class PixelGaussianFit:
 
     def _normal_equations(self, m: int, fx, dfx, fy, dfy, flux, v: dict) -> None:
         """normal (m, 3, 3) and grad (m, 3) over (x, y, F) from the weights ``v["weight"]``
-        and the weighted residuals ``v["resid"]`` (module docstring: bilinear forms)."""
+        and the weighted residuals ``v["resid"]`` (module docstring: bilinear forms).
+
+        Each row factor meets all the column products it needs in one
+        contraction (fy^2 with W dfx^2, W dfx fx and W fx^2; fy dfy with the
+        last two; fy with R dfx and R fx).
+        """
         normal, grad = self._normal[:m], self._grad[:m]
         cols, wb = self._columns(m, 3)
         np.multiply(dfx, dfx, out=cols[..., 0])
@@ -94,23 +100,22 @@ class PixelGaussianFit:
         np.matmul(v["weight"], cols, out=wb)            # (W dfx^2, W dfx fx, W fx^2)
         fy2, fydy = fy * fy, fy * dfy
         f, f2 = flux, flux * flux
-        xx = f2 * np.einsum("ij,ij->i", fy2, wb[..., 0])
-        xy = f2 * np.einsum("ij,ij->i", fydy, wb[..., 1])
-        xf = f * np.einsum("ij,ij->i", fy2, wb[..., 1])
-        yy = f2 * np.einsum("ij,ij->i", dfy * dfy, wb[..., 2])
-        yf = f * np.einsum("ij,ij->i", fydy, wb[..., 2])
-        ff = np.einsum("ij,ij->i", fy2, wb[..., 2])
-        normal[:, 0, 0], normal[:, 1, 1], normal[:, 2, 2] = xx, yy, ff
-        normal[:, 0, 1] = normal[:, 1, 0] = xy
-        normal[:, 0, 2] = normal[:, 2, 0] = xf
-        normal[:, 1, 2] = normal[:, 2, 1] = yf
+        by_fy2 = np.einsum("ij,ijk->ik", fy2, wb)       # (xx, xf, ff) / (F^2, F, 1)
+        by_fydy = np.einsum("ij,ijk->ik", fydy, wb[..., 1:])   # (xy, yf) / (F^2, F)
+        normal[:, 0, 0] = f2 * by_fy2[:, 0]
+        normal[:, 1, 1] = f2 * np.einsum("ij,ij->i", dfy * dfy, wb[..., 2])
+        normal[:, 2, 2] = by_fy2[:, 2]
+        normal[:, 0, 1] = normal[:, 1, 0] = f2 * by_fydy[:, 0]
+        normal[:, 0, 2] = normal[:, 2, 0] = f * by_fy2[:, 1]
+        normal[:, 1, 2] = normal[:, 2, 1] = f * by_fydy[:, 1]
         cols, rb = self._columns(m, 2)
         np.copyto(cols[..., 0], dfx)
         np.copyto(cols[..., 1], fx)
         np.matmul(v["resid"], cols, out=rb)             # (R dfx, R fx)
-        grad[:, 0] = f * np.einsum("ij,ij->i", fy, rb[..., 0])
-        grad[:, 1] = f * np.einsum("ij,ij->i", dfy, rb[..., 1])
-        grad[:, 2] = np.einsum("ij,ij->i", fy, rb[..., 1])
+        by_fy = np.einsum("ij,ijk->ik", fy, rb)
+        np.multiply(by_fy[:, 0], f, out=grad[:, 0])
+        np.multiply(np.einsum("ij,ij->i", dfy, rb[..., 1]), f, out=grad[:, 1])
+        np.copyto(grad[:, 2], by_fy[:, 1])
 
     def run(self, m: int, signal: np.ndarray, raw: np.ndarray, x: np.ndarray, y: np.ndarray,
             noise: np.ndarray, saturation: float, max_shift: float) -> np.ndarray:
@@ -134,8 +139,11 @@ class PixelGaussianFit:
         normal, grad = self._normal[:m], self._grad[:m]
         w, model, resid = v["weight"], v["model"], v["resid"]
         for _ in range(self.iterations):
-            fx, dfx = pixel_fractions(self.edges[None, :] - x[:, None], self.sigma)
-            fy, dfy = pixel_fractions(self.edges[None, :] - y[:, None], self.sigma)
+            edges = self._edges[: 2 * m * (side + 1)].reshape(2, m, side + 1)
+            np.subtract(self.edges, x[:, None], out=edges[0])
+            np.subtract(self.edges, y[:, None], out=edges[1])
+            frac, dfrac = pixel_fractions(edges, self.sigma)
+            fx, fy, dfx, dfy = frac[0], frac[1], dfrac[0], dfrac[1]
             np.multiply((flux[:, None] * fy)[:, :, None], fx[:, None, :], out=model)
             # weights 1 / (noise^2 + max(model, 0)), zero for clipped pixels
             np.maximum(model, 0.0, out=w)
@@ -146,8 +154,17 @@ class PixelGaussianFit:
             self._normal_equations(m, fx, dfx, fy, dfy, flux, v)
             det = np.linalg.det(normal)
             good = np.isfinite(det) & (det > 0)
-            if not np.any(good):
+            if not good.any():
                 break
+            if good.all():   # the usual case: every star steps, no gathering
+                step = np.linalg.solve(normal, grad[..., None])[..., 0]
+                for pos, axis_step in ((x, step[:, 0]), (y, step[:, 1])):
+                    np.add(pos, axis_step, out=pos)
+                    np.maximum(pos, -max_shift, out=pos)
+                    np.minimum(pos, max_shift, out=pos)
+                np.add(flux, step[:, 2], out=flux)
+                np.maximum(flux, 1.0, out=flux)
+                continue
             step = np.linalg.solve(normal[good], grad[good][..., None])[..., 0]
             x[good] = np.clip(x[good] + step[:, 0], -max_shift, max_shift)
             y[good] = np.clip(y[good] + step[:, 1], -max_shift, max_shift)

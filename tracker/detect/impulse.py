@@ -170,6 +170,13 @@ class ImpulseFilter:
         self.any_before = np.zeros(self.capacity, np.uint8)
         self.any_after = np.zeros(self.capacity, np.uint8)
         self.counts = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0}
+        self._median_wait = None
+
+    def start_median(self, work: np.ndarray) -> None:
+        """Begin the 3x3 median of ``work`` (the frame :meth:`run` will be given, already
+        final) on a worker thread, for :meth:`run` to collect: the caller's other work
+        (the background's statistics) overlaps it. Same median as :meth:`run` makes."""
+        self._median_wait = self.slabs.start(_median3, work, self.median)
 
     def run(self, work_pad: np.ndarray, work: np.ndarray, bg_pad: np.ndarray,
             limit_pad: np.ndarray, limit: np.ndarray) -> dict:
@@ -184,7 +191,11 @@ class ImpulseFilter:
             counts[key] = 0
         self._n = 0
         self._dense = False
-        self.slabs.run(_median3, work, self.median)
+        if self._median_wait is None:
+            self.slabs.run(_median3, work, self.median)
+        else:
+            self._median_wait()
+            self._median_wait = None
         self.slabs.rows(lambda a, b: self._first_cut(work[a:b], limit[a:b], a, b))
         n = self.layout.nonzero(self.mask_pad, self.index)
         if n == 0:
@@ -226,8 +237,12 @@ class ImpulseFilter:
         return np.compress(peak, idx)
 
     def refine(self, work_pad: np.ndarray, bg_pad: np.ndarray, limit_pad: np.ndarray,
-               contrast: float, ring: float = 0.0) -> dict:
+               contrast: float, ring: float = 0.0, mirror_pad: np.ndarray | None = None) -> dict:
         """Test the last :meth:`run`'s candidates again with ``contrast``, and grow; counts.
+
+        ``mirror_pad``: a float32 copy of ``work_pad`` (padded alike) made after
+        :meth:`run`; every pixel this pass rewrites is rewritten there too, so
+        it stays a copy without another pass over the frame.
 
         ``ring``: a candidate above its median by the limit whose eight
         neighbours hold less than ``ring`` times its height above the
@@ -254,11 +269,21 @@ class ImpulseFilter:
                 n = self._grow(n, work_pad, bg_pad, limit_pad)
             self._retest(n, work_pad, min(contrast, self.contrast), ring)
         self._count(n, self.index[:n], self.replaced[:n])
-        self._clear_tracks(n, work_pad, bg_pad, limit_pad)
+        if mirror_pad is not None:
+            self._mirror(self.index[:n], self.reads[:n], work_pad, mirror_pad)
+        self._clear_tracks(n, work_pad, bg_pad, limit_pad, mirror_pad)
         return self.counts
 
+    @staticmethod
+    def _mirror(idx: np.ndarray, reads: np.ndarray, work_pad: np.ndarray,
+                mirror_pad: np.ndarray) -> None:
+        """Copy the pixels ``idx`` of ``work_pad`` into ``mirror_pad`` (``reads``: scratch
+        of idx's length and work_pad's dtype)."""
+        np.take(work_pad.ravel(), idx, out=reads, mode="clip")
+        np.put(mirror_pad.ravel(), idx, reads, mode="clip")
+
     def _clear_tracks(self, n: int, work_pad: np.ndarray, bg_pad: np.ndarray,
-                      limit_pad: np.ndarray) -> None:
+                      limit_pad: np.ndarray, mirror_pad: np.ndarray | None = None) -> None:
         """Set the 3x3 around every track pixel to the background where it stands above it.
 
         A track pixel is a replaced pixel with a replaced neighbour. Along a
@@ -306,6 +331,8 @@ class ImpulseFilter:
         np.copyto(values, flat[0])                       # scratch not needed past here
         kept = np.compress(high, area)
         np.put(flat, kept, np.compress(high, self.area_reads[: 9 * k]), mode="clip")
+        if mirror_pad is not None:
+            self._mirror(kept, self.area_reads[: len(kept)], work_pad, mirror_pad)
 
     def _neighbour_marks(self, n: int, idx: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """(n, 8) view: 1 where each listed pixel's neighbour (``_EIGHT`` order) is marked.

@@ -51,6 +51,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tracker.detect.order import median
+
 __all__ = ["PsfEstimate", "PsfMeter", "PsfTracker", "SIGMA_MIN_PX", "SIGMA_MAX_PX",
            "FWHM_PER_SIGMA", "pixel_tensor_to_optics", "combine_stars"]
 
@@ -136,9 +138,17 @@ class PsfMeter:
         self._raw = np.zeros(c * k, np.uint16)
         self._bgwin = np.zeros(c * k, np.float32)
         self.last_cand, self.last_n, self.last_good = np.zeros(0, np.intp), 0, np.zeros(0, bool)
-        self.per_star = {name: np.zeros(c, np.float64) for name in (
-            "x", "y", "w2", "s0", "mxx", "myy", "mxy", "cxx", "cyy", "cxy", "ring", "peak",
-            "raw_peak")}
+        # one row per quantity; x and y, and mxx and myy, adjacent so that both axes
+        # are worked on in one call
+        names = ("x", "y", "mxx", "myy", "w2", "s0", "mxy", "cxx", "cyy", "cxy", "ring",
+                 "peak", "raw_peak", "scale", "move_x", "move_y")
+        self._per_star = np.zeros((len(names), c), np.float64)
+        self.per_star = dict(zip(names, self._per_star, strict=True))
+        self._move = names.index("move_x")   # move_x, move_y: scratch for (x, y) steps
+        self._e = np.zeros(2 * c * side, np.float64)      # column and row offsets
+        self._g = np.zeros(2 * c * side, np.float64)      # their Gaussian weights
+        self._gy_e = np.zeros(2 * c * side, np.float64)   # gy ey, gy ey^2
+        self._axes = {r: np.arange(-r, r + 1, dtype=np.float64) for r in range(self.radius + 1)}
 
     def _window(self, radius: int) -> tuple:
         """(offsets, r) of a window of ``radius``: padded flat offsets and the distance
@@ -176,7 +186,7 @@ class PsfMeter:
         p["w2"].fill(max(sigma_start ** 2 + PIXEL_VARIANCE, _MIN_WEIGHT_PX ** 2))
         first = min(n, _SCOUTS)
         self._iterate(first, self.radius, image_pad, bg_pad, cand, p, _SCOUT_ITERATIONS)
-        w_typical = float(np.sqrt(np.median(p["w2"][:first])))
+        w_typical = math.sqrt(median(p["w2"][:first]))
         p["w2"].fill(w_typical ** 2)
         radius = min(self.radius, int(math.ceil(_RING[1] * w_typical * _RING_MARGIN)) + 1)
         view = self._iterate(n, radius, image_pad, bg_pad, cand, p, _ITERATIONS)
@@ -223,20 +233,34 @@ class PsfMeter:
         q = {name: arr[:n] for name, arr in p.items()}
         q["x"].fill(0.0)
         q["y"].fill(0.0)
-        for _ in range(iterations):
-            self._weighted(q, v, radius)
-            # move to the weighted centroid (gain 2: exact when the weight matches the spot)
-            np.clip(q["x"] + 2.0 * q["mxx"], -1.5, 1.5, out=q["x"])  # mxx: sum(W S ex) / S0
-            np.clip(q["y"] + 2.0 * q["myy"], -1.5, 1.5, out=q["y"])
+        xy, moments, move = (self._per_star[rows, :n] for rows in (
+            slice(0, 2), slice(2, 4), slice(self._move, self._move + 2)))
+        w2 = q["w2"]
+        with np.errstate(invalid="ignore", divide="ignore"):   # for _deconvolve_weight
+            self._adapt(q, v, radius, iterations, xy, moments, move, w2)
             self._weighted(q, v, radius, second=True)
             _deconvolve_weight(q)
-            np.add(q["cxx"], q["cyy"], out=q["w2"])
-            np.multiply(q["w2"], 0.5, out=q["w2"])
-            np.nan_to_num(q["w2"], copy=False, nan=_MIN_WEIGHT_PX ** 2)
-            np.clip(q["w2"], _MIN_WEIGHT_PX ** 2, (1.2 * SIGMA_MAX_PX) ** 2, out=q["w2"])
-        self._weighted(q, v, radius, second=True)
-        _deconvolve_weight(q)
         return v
+
+    def _adapt(self, q: dict, v: dict, radius: int, iterations: int, xy: np.ndarray,
+               moments: np.ndarray, move: np.ndarray, w2: np.ndarray) -> None:
+        """The adaptive iterations of :meth:`_iterate`: centre, then weight, ``iterations``
+        times (``xy``, ``moments``, ``move``: (2, n) views of the per-star table)."""
+        for _ in range(iterations):
+            self._weighted(q, v, radius)
+            # move to the weighted centroid (gain 2: exact when the weight matches the
+            # spot); mxx, myy hold sum(W S ex) / S0, sum(W S ey) / S0
+            np.multiply(moments, 2.0, out=move)
+            np.add(xy, move, out=xy)
+            np.maximum(xy, -1.5, out=xy)
+            np.minimum(xy, 1.5, out=xy)
+            self._weighted(q, v, radius, second=True)
+            _deconvolve_weight(q)
+            np.add(q["cxx"], q["cyy"], out=w2)
+            np.multiply(w2, 0.5, out=w2)
+            np.copyto(w2, _MIN_WEIGHT_PX ** 2, where=np.isnan(w2))
+            np.maximum(w2, _MIN_WEIGHT_PX ** 2, out=w2)
+            np.minimum(w2, (1.2 * SIGMA_MAX_PX) ** 2, out=w2)
 
     def _isolated(self, n: int, radius: int, v: dict, p: dict, noise: np.ndarray,
                   saturation: float) -> np.ndarray:
@@ -264,14 +288,19 @@ class PsfMeter:
         First moments are stored as mxx = sum(W S ex) / S0 and myy likewise.
         The Gaussian weight is separable, W = gy(row) gx(col), so each sum is
         gy-weighted over rows of S times one of gx, gx ex, gx ex^2 (one
-        batched matrix product over the windows' pixels).
+        batched matrix product over the windows' pixels); the two axes'
+        offsets and weights are computed together.
         """
         n, side = len(p["x"]), 2 * radius + 1
-        axis = np.arange(-radius, radius + 1, dtype=np.float64)
-        ex = axis[None, :] - p["x"][:, None]                # (n, side): column offsets
-        ey = axis[None, :] - p["y"][:, None]                # row offsets
-        scale = (-0.5 / p["w2"])[:, None]
-        gx, gy = np.exp(ex * ex * scale), np.exp(ey * ey * scale)
+        e = self._e[: 2 * n * side].reshape(2, n, side)     # (ex, ey): column, row offsets
+        np.subtract(self._axes[radius], self._per_star[0:2, :n, None], out=e)
+        g = self._g[: 2 * n * side].reshape(2, n, side)     # (gx, gy)
+        scale = p["scale"]
+        np.divide(-0.5, p["w2"], out=scale)
+        np.multiply(e, e, out=g)
+        np.multiply(g, scale[:, None], out=g)
+        np.exp(g, out=g)
+        (ex, ey), (gx, gy) = e, g
         shape = (n, side, 3)
         cols = self._axis[: n * side * 3].reshape(shape)
         rows = self._rows[: n * side * 3].reshape(shape)
@@ -279,42 +308,44 @@ class PsfMeter:
         np.multiply(gx, ex, out=cols[..., 1])
         np.multiply(cols[..., 1], ex, out=cols[..., 2])
         np.matmul(v["s"].reshape(n, side, side), cols, out=rows)  # S (gx, gx ex, gx ex^2)
-        gy_ey = gy * ey
-        np.einsum("ij,ij->i", gy, rows[..., 0], out=p["s0"])
+        gy_e = self._gy_e[: 2 * n * side].reshape(2, n, side)  # (gy ey, gy ey^2)
+        np.multiply(gy, ey, out=gy_e[0])
+        by_gy = np.einsum("ij,ijk->ik", gy, rows)   # S0, sum(W S ex), sum(W S ex^2)
+        p["s0"][:] = by_gy[:, 0]
         denom = np.maximum(p["s0"], 1e-12)
+        moments = self._per_star[2:4, :n]            # (mxx, myy)
         if not second:
-            np.einsum("ij,ij->i", gy, rows[..., 1], out=p["mxx"])
-            np.einsum("ij,ij->i", gy_ey, rows[..., 0], out=p["myy"])
-            p["mxx"] /= denom
-            p["myy"] /= denom
+            moments[0] = by_gy[:, 1]
+            np.einsum("ij,ij->i", gy_e[0], rows[..., 0], out=p["myy"])
+            np.divide(moments, denom, out=moments)
             return
-        np.einsum("ij,ij->i", gy, rows[..., 2], out=p["mxx"])
-        np.einsum("ij,ij->i", gy_ey, rows[..., 1], out=p["mxy"])
-        np.einsum("ij,ij->i", gy_ey * ey, rows[..., 0], out=p["myy"])
-        for key in ("mxx", "myy", "mxy"):
-            np.divide(p[key], denom, out=p[key])
+        np.multiply(gy_e[0], ey, out=gy_e[1])
+        moments[0] = by_gy[:, 2]
+        np.einsum("ij,ij->i", gy_e[0], rows[..., 1], out=p["mxy"])
+        np.einsum("ij,ij->i", gy_e[1], rows[..., 0], out=p["myy"])
+        np.divide(moments, denom, out=moments)
+        np.divide(p["mxy"], denom, out=p["mxy"])
 
 
 def _deconvolve_weight(p: dict) -> None:
     """cxx, cyy, cxy = (M^-1 - I / w^2)^-1: the spot's covariance from its weighted moments.
 
     NaN where that is not a covariance (noise, or a spot broader than the
-    model allows).
+    model allows). The caller silences numpy's warnings for the divisions.
     """
     mxx, myy, mxy = p["mxx"], p["myy"], p["mxy"]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        det_m = mxx * myy - mxy * mxy
-        inv_w2 = 1.0 / p["w2"]
-        a = myy / det_m - inv_w2
-        b = mxx / det_m - inv_w2
-        c = -mxy / det_m
-        det_c = a * b - c * c
-        bad = ~((det_m > 0) & (det_c > 0) & (a > 0))
-        np.divide(b, det_c, out=p["cxx"])
-        np.divide(a, det_c, out=p["cyy"])
-        np.divide(-c, det_c, out=p["cxy"])
+    det_m = mxx * myy - mxy * mxy
+    inv_w2 = 1.0 / p["w2"]
+    a = myy / det_m - inv_w2
+    b = mxx / det_m - inv_w2
+    c = -mxy / det_m
+    det_c = a * b - c * c
+    bad = ~((det_m > 0) & (det_c > 0) & (a > 0))
+    np.divide(b, det_c, out=p["cxx"])
+    np.divide(a, det_c, out=p["cyy"])
+    np.divide(-c, det_c, out=p["cxy"])
     for key in ("cxx", "cyy", "cxy"):
-        p[key][bad] = np.nan
+        np.copyto(p[key], np.nan, where=bad)
 
 
 def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstimate | None:
@@ -334,7 +365,7 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
     agree = np.abs(log_s - best) <= _AGREE
     if np.count_nonzero(agree) < min_stars:
         return None
-    sel = (np.median(cxx[agree]), np.median(cyy[agree]), np.median(cxy[agree]))
+    sel = (median(cxx[agree]), median(cyy[agree]), median(cxy[agree]))
     s_opt, e_opt, angle = pixel_tensor_to_optics(*sel)
     m = int(np.count_nonzero(agree))
     if not np.isfinite(s_opt):
@@ -343,7 +374,7 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
     # stars' robust spread (when the mode is picked among noisy values, the stars
     # near it understate how far it can wander)
     spread = max(float(np.std(sigma[agree])) / math.sqrt(m),
-                 1.4826 * float(np.median(np.abs(sigma - np.median(sigma))))
+                 1.4826 * median(np.abs(sigma - median(sigma)))
                  / math.sqrt(len(sigma)), 0.01 * float(s_opt) / math.sqrt(m))
     return PsfEstimate(float(np.clip(s_opt, SIGMA_MIN_PX, SIGMA_MAX_PX)), float(e_opt),
                        float(angle), m, 1.25 * spread)

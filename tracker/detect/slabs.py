@@ -10,7 +10,9 @@ copied in. The result is the same, pixel for pixel, as one call on the whole
 frame.
 
 :meth:`SlabRunner.rows` does the same for work that only reads and writes
-its own rows (no cuts to repair). Frames too short to cut (fewer than
+its own rows (no cuts to repair), and :meth:`SlabRunner.start` runs a filter
+on the whole frame in a worker thread while the caller does other work.
+Frames too short to cut (fewer than
 ``8 * max(halo, 1)`` rows per slab) are processed in one call. Buffers
 (one strip per cut) and the worker threads are made at construction.
 """
@@ -62,6 +64,16 @@ class SlabRunner:
         work(*self.slabs[0])
         for job in jobs:
             job.result()
+
+    def start(self, op: Callable[[np.ndarray, np.ndarray], object], src: np.ndarray,
+              dst: np.ndarray) -> Callable[[], object]:
+        """Begin dst = op(src) over the whole frame in one call on a worker thread, while
+        the caller goes on with other work; returns the function that waits for it.
+        With one thread it runs now (the wait returns at once)."""
+        if self.pool is None:
+            op(src, dst)
+            return lambda: None
+        return self.pool.submit(op, src, dst).result
 
     def run(self, op: Callable[[np.ndarray, np.ndarray], object], src: np.ndarray,
             dst: np.ndarray, halo: int | None = None) -> None:

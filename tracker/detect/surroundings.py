@@ -34,6 +34,8 @@ import math
 
 import numpy as np
 
+from tracker.detect.order import percentile
+
 __all__ = ["Surroundings", "sky_noise_model"]
 
 _SECTORS = 8
@@ -59,13 +61,13 @@ def sky_noise_model(level: np.ndarray, noise: np.ndarray,
         live[:] = True
     level = np.asarray(level, np.float64).ravel()[live]
     var = np.square(np.asarray(noise, np.float64).ravel()[live])
-    level0 = float(np.percentile(level, 10))
-    var0 = float(np.percentile(var, 10))
+    level0 = percentile(level, 10.0)
+    var0 = percentile(var, 10.0)
     brighter = level - level0 > 5.0 * math.sqrt(max(var0, 1e-12))
     if np.count_nonzero(brighter) < 8:
         return level0, var0, 0.0
     ratio = (var[brighter] - var0) / (level[brighter] - level0)
-    return level0, var0, max(0.0, float(np.percentile(ratio, 25)))
+    return level0, var0, max(0.0, percentile(ratio, 25.0))
 
 
 class _Ring:
