@@ -298,3 +298,30 @@ def test_windows_that_do_not_verify_hand_the_frame_to_lost_in_space():
     r = pipe.process(there.image, 10, int(4 * 1e8))
     assert r.windows == 0 and r.solution.ok and r.solution.mode == "lost_in_space"
     assert attitude_error(r.solution.R, there.R)[0] < 10 * ARCSEC
+
+
+def test_windows_take_the_full_frames_psf_and_measure_it_in_turn():
+    """The windows use the PSF the full frames measured; a change of focus reaches it
+    within ``identify.track_lens_every`` windowed frames (their meter's turn), and
+    between turns the PSF in use stays as it was."""
+    cfg, cat, rng = _sky(seed=12)
+    every = 4
+    cfg = dataclasses.replace(cfg, identify=dataclasses.replace(cfg.identify,
+                                                                track_lens_every=every))
+    R = matrix_from_radec_roll(*np.radians((84.0, -3.0, 10.0)))
+    pipe = Pipeline(cfg)
+    sharp, change, frames = 1.1, 8, 8 + 2 * every
+    reported = []
+    for i in range(frames):
+        sim = dataclasses.replace(cfg.sim, psf_sigma_px=sharp if i < change else 1.6)
+        r = pipe.process(render_sky(cfg.camera, cat, R, sim, rng).image, 10, int(i * 1e8))
+        assert r.solution.ok and (i < 3 or r.windows > 0), i
+        reported.append((r.windows > 0, r.detections.psf_sigma_px))
+    full = [psf for windowed, psf in reported[:change] if not windowed]
+    given = [psf for windowed, psf in reported[:change] if windowed]
+    assert abs(full[-1] / sharp - 1) < 0.1
+    assert all(abs(psf / full[-1] - 1) < 0.05 for psf in given)   # the full frames' PSF
+    after = [psf for _, psf in reported[change:]]
+    assert after[0] == given[-1] or abs(after[0] / 1.6 - 1) < 0.1
+    assert len(set(after[:every])) <= 2                  # moved at most once, on its turn
+    assert all(abs(psf / 1.6 - 1) < 0.1 for psf in after[every:])

@@ -386,9 +386,10 @@ class IdentifyConfig:
     track_accel_deg_s2: float = knob(2.0, "tracking: angular acceleration (1 sigma per axis) "
                                      "the prediction allows between frames", "deg/s^2",
                                      min=0.0, max=1000.0)
-    track_lens_every: int = knob(10, "windowed tracking fits the lens (focal length, k1) on "
-                                 "one frame in this many; the others take the filtered "
-                                 "lens", "frames", min=1, max=100000)
+    track_lens_every: int = knob(10, "windowed tracking fits the lens (focal length, k1) and "
+                                 "measures the PSF in its windows on one frame in this many; "
+                                 "the others take the filtered lens and the PSF as it stands",
+                                 "frames", min=1, max=100000)
     track_window_max_px: int = knob(96, "tracking: largest window; a prediction needing "
                                     "more is searched in the whole frame", "px", min=16,
                                     max=1024)

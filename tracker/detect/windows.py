@@ -12,7 +12,8 @@ centroids, flags). The detector is whatever ``make(shape)`` returns for the
 mosaic's shape (tracker.detect.make_detector): that function is the whole
 interface, so another detector takes over by being made there.
 
-Stars are returned in frame pixels (tracker.detect.result's convention).
+Stars are returned in frame pixels (tracker.detect.result's convention),
+with the PSF the mosaic's detector used.
 The filter and the background see the neighbouring window across a
 window's inner borders, so a star centred within ``margin`` px of an
 inner border is dropped (the planner sizes windows so that a predicted
@@ -106,7 +107,9 @@ class WindowDetector:
         flags = out["flags"][:n] & ~np.uint16(StarFlag.EDGE)
         flags[edge] |= StarFlag.EDGE
         out["flags"][:n] = flags
-        return self.table.result(n, found.reason, found.counters, found.stages_ms)
+        return Detections(out[:n], found.reason, found.counters, found.stages_ms,
+                          found.psf_sigma_px, found.psf_ellipticity, found.psf_angle_deg,
+                          found.psf_stars)
 
     def _inside(self, offset: np.ndarray, origin: np.ndarray, axis: int) -> np.ndarray:
         """Offsets within a window at least ``margin`` from its inner borders.
