@@ -366,8 +366,15 @@ class IdentifyConfig:
     track_windows: bool = knob(True, "tracking with a known rate detects only in windows "
                                "around the predicted stars, plus a slice of the frame; "
                                "false: the whole frame every frame")
-    track_window_stars: int = knob(64, "tracking: brightest predicted catalogue stars "
-                                   "given a window", "stars", min=4, max=1024)
+    track_window_stars: int = knob(32, "tracking: most predicted catalogue stars given a "
+                                   "window (those carrying track_window_information, "
+                                   "brightest first)", "stars", min=4, max=1024)
+    track_window_information: float = knob(0.95, "tracking: windows for the fewest "
+                                           "predicted stars that carry this share of the "
+                                           "attitude's information, cross-boresight and "
+                                           "roll each (1/sigma^2 of their centroids from "
+                                           "the SNR the last matches predict)", "",
+                                           min=0.1, max=1.0)
     track_window_mag_margin: float = knob(0.5, "tracking: windows only for predicted stars "
                                           "at most this much fainter than the faintest "
                                           "star matched lately (that limit falls by 0.02 "
