@@ -409,18 +409,21 @@ class Solver:
     def prediction(self, t_ns: int, exposure_s: float, observer=None) -> TrackPrediction | None:
         """The stars tracking follows into a frame at ``t_ns``, or None without a rate.
 
-        The ``identify.track_window_stars`` brightest catalogue stars predicted
-        in the image no fainter than ``track_window_mag_margin`` below the
-        faintest star matched lately (the last solution's faintest, or the
-        limit before less ``_FAINTEST_DECAY_MAG`` a frame, whichever is
-        fainter: fainter stars would not be found, their windows would cost
-        without a star; a star a little fainter found in its window raises
-        the limit for the next frame),
-        then the ``track_window_unknown`` brightest unidentified stars of the
-        last frame, each with its uncertainty and its smear over
-        ``exposure_s`` (tracker.identify.predict). Needs a recent solution and
-        a rate (the first frame after a lock has none: its stars are searched
-        in the whole frame).
+        The catalogue stars predicted in the image no fainter than
+        ``track_window_mag_margin`` below the faintest star matched lately
+        (the last solution's faintest, or the limit before less
+        ``_FAINTEST_DECAY_MAG`` a frame, whichever is fainter: fainter stars
+        would not be found, their windows would cost without a star; a star a
+        little fainter found in its window raises the limit for the next
+        frame); of those, once a frame's matches gave the SNR a magnitude
+        predicts, the fewest that carry ``track_window_information`` of the
+        attitude's information (tracker.identify.predict.informative), at
+        most ``track_window_stars``, brightest first; then the
+        ``track_window_unknown`` brightest unidentified stars of the last
+        frame, each with its uncertainty and its smear over ``exposure_s``
+        (tracker.identify.predict). Needs a recent solution and a rate (the
+        first frame after a lock has none: its stars are searched in the
+        whole frame).
         """
         if not self._can_track(t_ns) or self._rate is None or self._last_P is None:
             return None
