@@ -175,6 +175,11 @@ class Pipeline:
                                                                     epoch_year=epoch))
         self._solver = None
 
+    @property
+    def window_cells(self) -> list[int]:
+        """Window sides (px) of the window detectors held, oldest first."""
+        return [key[0] for key in self._window_detectors]
+
     def window_detector_for(self, cell: int, image: np.ndarray, bit_depth: int,
                             measure_psf: bool = False) -> WindowDetector:
         """The window detector for windows of ``cell`` px of frames like ``image``.
