@@ -23,7 +23,13 @@ from tracker.detect.result import StarFlag
 from tracker.detect.trail import TrailFit, normal_cdf
 from tracker.detect.windows import WindowDetector
 from tracker.identify import make_solver
-from tracker.identify.predict import TrackPrediction, pixel_jacobian
+from tracker.identify.predict import (
+    CENTROID_FLOOR_PX,
+    CENTROID_SPREAD_PX,
+    TrackPrediction,
+    informative,
+    pixel_jacobian,
+)
 from tracker.identify.windows import WindowPlanner
 from tracker.pipeline import Pipeline
 from tracker.sim import render_sequence, render_sky
@@ -298,3 +304,55 @@ def test_windows_that_do_not_verify_hand_the_frame_to_lost_in_space():
     r = pipe.process(there.image, 10, int(4 * 1e8))
     assert r.windows == 0 and r.solution.ok and r.solution.mode == "lost_in_space"
     assert attitude_error(r.solution.R, there.R)[0] < 10 * ARCSEC
+
+
+def test_windows_take_the_full_frames_psf_and_measure_it_in_turn():
+    """The windows use the PSF the full frames measured; a change of focus reaches it
+    within ``identify.track_lens_every`` windowed frames (their meter's turn), and
+    between turns the PSF in use stays as it was."""
+    cfg, cat, rng = _sky(seed=12)
+    every = 4
+    cfg = dataclasses.replace(cfg, identify=dataclasses.replace(cfg.identify,
+                                                                track_lens_every=every))
+    R = matrix_from_radec_roll(*np.radians((84.0, -3.0, 10.0)))
+    pipe = Pipeline(cfg)
+    sharp, change, frames = 1.1, 8, 8 + 2 * every
+    reported = []
+    for i in range(frames):
+        sim = dataclasses.replace(cfg.sim, psf_sigma_px=sharp if i < change else 1.6)
+        r = pipe.process(render_sky(cfg.camera, cat, R, sim, rng).image, 10, int(i * 1e8))
+        assert r.solution.ok and (i < 3 or r.windows > 0), i
+        reported.append((r.windows > 0, r.detections.psf_sigma_px))
+    full = [psf for windowed, psf in reported[:change] if not windowed]
+    given = [psf for windowed, psf in reported[:change] if windowed]
+    assert abs(full[-1] / sharp - 1) < 0.1
+    assert all(abs(psf / full[-1] - 1) < 0.05 for psf in given)   # the full frames' PSF
+    after = [psf for _, psf in reported[change:]]
+    assert after[0] == given[-1] or abs(after[0] / 1.6 - 1) < 0.1
+    assert len(set(after[:every])) <= 2                  # moved at most once, on its turn
+    assert all(abs(psf / 1.6 - 1) < 0.1 for psf in after[every:])
+
+
+def test_windows_go_to_the_stars_that_carry_the_information():
+    """Bright stars near the boresight hold the cross-boresight information, a few faint
+    ones far out hold roll's: both kinds get windows, the faint ones near the centre
+    do not, and each share is reached by the fewest stars that reach it."""
+    rng = np.random.default_rng(3)
+    centre = (800.0, 650.0)
+    near = centre + rng.normal(0.0, 60.0, (12, 2))
+    far = np.array([[20.0, 20.0], [1580.0, 1280.0], [20.0, 1280.0], [1580.0, 20.0]])
+    xy = np.concatenate((near[:6], far, near[6:]))
+    snr = np.concatenate((np.full(6, 200.0), np.full(4, 12.0), np.full(6, 4.0)))
+    chosen = informative(xy, snr, centre, 0.95)
+    assert set(range(10)) <= set(chosen) and len(chosen) < 16
+    assert np.all(np.diff(chosen) > 0)                    # the input's order kept
+    w = 1.0 / (CENTROID_FLOOR_PX ** 2 + (CENTROID_SPREAD_PX / snr) ** 2)
+    rho2 = np.sum(np.square(xy - centre), axis=1)
+    for info in (w, w * rho2):
+        assert info[chosen].sum() >= 0.95 * info.sum()
+    # the stars one ranking takes are the fewest that reach its share
+    cross = np.sort(w)[::-1]
+    k = np.count_nonzero(np.cumsum(cross) < 0.95 * w.sum()) + 1
+    assert len(chosen) >= k and np.cumsum(cross)[k - 2] < 0.95 * w.sum()
+    np.testing.assert_array_equal(informative(xy, snr, centre, 1.0), np.arange(16))
+    assert len(informative(xy[:0], snr[:0], centre, 0.95)) == 0

@@ -156,7 +156,13 @@ def attitude_covariance(obs: np.ndarray, sigma: float | np.ndarray) -> np.ndarra
     obs = np.asarray(obs, dtype=np.float64)
     inv_var = np.broadcast_to(1.0 / np.square(sigma), obs.shape[:1])
     F = np.eye(3) * inv_var.sum() - (obs.T * inv_var) @ obs
-    return np.linalg.inv(F)
+    # F is symmetric: its inverse by cofactors over the determinant (a LAPACK call from the
+    # frame loop can cost a millisecond on a busy machine)
+    (xx, xy, xz), (_, yy, yz), (_, _, zz) = F.tolist()
+    c_xx, c_xy, c_xz = yy * zz - yz * yz, xz * yz - xy * zz, xy * yz - xz * yy
+    c_yy, c_yz, c_zz = xx * zz - xz * xz, xy * xz - xx * yz, xx * yy - xy * xy
+    det = xx * c_xx + xy * c_xy + xz * c_xz
+    return np.array([[c_xx, c_xy, c_xz], [c_xy, c_yy, c_yz], [c_xz, c_yz, c_zz]]) / det
 
 
 def rotation_vector(R: np.ndarray) -> np.ndarray:

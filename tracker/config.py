@@ -367,8 +367,15 @@ class IdentifyConfig:
     track_windows: bool = knob(True, "tracking with a known rate detects only in windows "
                                "around the predicted stars, plus a slice of the frame; "
                                "false: the whole frame every frame")
-    track_window_stars: int = knob(64, "tracking: brightest predicted catalogue stars "
-                                   "given a window", "stars", min=4, max=1024)
+    track_window_stars: int = knob(32, "tracking: most predicted catalogue stars given a "
+                                   "window (those carrying track_window_information, "
+                                   "brightest first)", "stars", min=4, max=1024)
+    track_window_information: float = knob(0.95, "tracking: windows for the fewest "
+                                           "predicted stars that carry this share of the "
+                                           "attitude's information, cross-boresight and "
+                                           "roll each (1/sigma^2 of their centroids from "
+                                           "the SNR the last matches predict)", "",
+                                           min=0.1, max=1.0)
     track_window_mag_margin: float = knob(0.5, "tracking: windows only for predicted stars "
                                           "at most this much fainter than the faintest "
                                           "star matched lately (that limit falls by 0.02 "
@@ -387,9 +394,10 @@ class IdentifyConfig:
     track_accel_deg_s2: float = knob(2.0, "tracking: angular acceleration (1 sigma per axis) "
                                      "the prediction allows between frames", "deg/s^2",
                                      min=0.0, max=1000.0)
-    track_lens_every: int = knob(10, "windowed tracking fits the lens (focal length, k1) on "
-                                 "one frame in this many; the others take the filtered "
-                                 "lens", "frames", min=1, max=100000)
+    track_lens_every: int = knob(10, "windowed tracking fits the lens (focal length, k1) and "
+                                 "measures the PSF in its windows on one frame in this many; "
+                                 "the others take the filtered lens and the PSF as it stands",
+                                 "frames", min=1, max=100000)
     track_window_max_px: int = knob(96, "tracking: largest window; a prediction needing "
                                     "more is searched in the whole frame", "px", min=16,
                                     max=1024)

@@ -17,9 +17,14 @@ tracker.detect.windows) and solved from those; if they do not verify (or
 the prediction is too uncertain for the largest window) the whole frame is
 detected and solved as without a lock. A detector is kept per window size
 (the :data:`DETECTORS_KEPT` last used), each made by ``make_detector`` for
-its mosaic of windows, with one slab thread (a mosaic is too small to cut)
-and background tiles of a third of the window: the star sits in the middle
-tile, whose 3 x 3 median then takes the window's own sky around it.
+its mosaic of windows, with one slab thread (a mosaic is too small to cut),
+buffers for pixels above threshold and impulses no larger than the mosaic
+(about 40 MiB a detector instead of 70) and background tiles of a third of
+the window: the star sits in the middle
+tile, whose 3 x 3 median then takes the window's own sky around it. The
+windows take the PSF the full frames measured as given, and measure it in
+the windows (folded into the same running estimate) on one windowed frame
+in ``identify.track_lens_every`` (tracker.detect.shared_psf).
 A windowed frame's ``stages_ms``: ``track.plan`` (from the frame's start to
 its windows: prediction and planning), ``windows.<stage>`` (the detector's
 stages on the mosaic), ``windows.gather`` (the mosaic and what the
@@ -56,7 +61,8 @@ from tracker.camera import CameraModel
 from tracker.catalogue import Catalogue
 from tracker.config import Config
 from tracker.detect import Detections, Detector, make_detector
-from tracker.detect.default import effective_sigma
+from tracker.detect.default import DefaultDetector, effective_sigma
+from tracker.detect.shared_psf import SharedPsf
 from tracker.detect.trail import TrailFit
 from tracker.detect.windowed import later_within
 from tracker.detect.windows import WindowDetector
@@ -103,6 +109,7 @@ class Pipeline:
         self._catalogue: Catalogue | None = None
         self._window_detectors: OrderedDict[tuple, WindowDetector] = OrderedDict()
         self._trail = TrailFit(effective_sigma(cfg.detect.psf_sigma_px))
+        self._windowed = 0   # windowed frames so far (the PSF meter's turn in the windows)
         idf = cfg.identify
         self._planner = WindowPlanner(
             self.camera.width, self.camera.height,
@@ -168,22 +175,43 @@ class Pipeline:
                                                                     epoch_year=epoch))
         self._solver = None
 
-    def window_detector_for(self, cell: int, image: np.ndarray,
-                            bit_depth: int) -> WindowDetector:
-        """The window detector for windows of ``cell`` px of frames like ``image``."""
+    @property
+    def window_cells(self) -> list[int]:
+        """Window sides (px) of the window detectors held, oldest first."""
+        return [key[0] for key in self._window_detectors]
+
+    def window_detector_for(self, cell: int, image: np.ndarray, bit_depth: int,
+                            measure_psf: bool = False) -> WindowDetector:
+        """The window detector for windows of ``cell`` px of frames like ``image``.
+
+        The default detector takes the PSF the full-frame detector of such
+        frames has measured as given (tracker.detect.shared_psf) and measures
+        it in the windows only with ``measure_psf`` (and ``detect.psf_measure``).
+        """
         key = (cell, image.dtype.str, bit_depth)
         found = self._window_detectors.pop(key, None)
         if found is None:
             while len(self._window_detectors) >= DETECTORS_KEPT:
                 self._window_detectors.popitem(last=False)
-            detect_cfg = dataclasses.replace(self.cfg.detect, threads=1,
-                                             background_tile_px=cell // 3,
-                                             background_step_px=max(1, cell // 24))
+            rows, cols = WindowDetector.mosaic_shape(cell, self._planner.capacity)
+            pixels = rows * cols            # no more pixels above threshold or impulses
+            detect_cfg = dataclasses.replace(
+                self.cfg.detect, threads=1, background_tile_px=cell // 3,
+                background_step_px=max(1, cell // 24),
+                max_pixels_above=min(self.cfg.detect.max_pixels_above, pixels),
+                max_impulses=min(self.cfg.detect.max_impulses, pixels))
             found = WindowDetector(
                 lambda shape: make_detector(detect_cfg, shape, bit_depth), image.shape, cell,
                 self._planner.capacity, self._planner.reach, self.cfg.detect.max_stars,
                 image.dtype)
         self._window_detectors[key] = found
+        inner = found.detector
+        if isinstance(inner, DefaultDetector):
+            full = self.detector_for(image.shape, bit_depth)
+            if not isinstance(inner.psf_tracker, SharedPsf):
+                inner.psf_tracker = SharedPsf(full.psf_tracker)
+            inner.psf_tracker.tracker = full.psf_tracker
+            inner.measure_psf = measure_psf and self.cfg.detect.psf_measure
         return found
 
     def process(self, image: np.ndarray, bit_depth: int, t_ns: int,
@@ -253,8 +281,10 @@ class Pipeline:
         plan = None if prediction is None else self._planner.plan(prediction)
         if plan is None or image.dtype not in (np.uint8, np.uint16) or image.ndim != 2:
             return None
+        self._windowed += 1
+        measure_psf = self._windowed % self.cfg.identify.track_lens_every == 0
         t1 = time.perf_counter_ns()
-        detections = self.window_detector_for(plan.cell, image, bit_depth).detect(
+        detections = self.window_detector_for(plan.cell, image, bit_depth, measure_psf).detect(
             image, plan.origins)
         t2 = time.perf_counter_ns()
         stages = {f"windows.{k}": v for k, v in detections.stages_ms.items()}

@@ -27,7 +27,9 @@ detect the first ``--peer-frames`` frames of each scenario for scale.
 replay backend looping over one still frame, so every frame after the first
 few is tracked in windows; real link on a pseudo-terminal drained by a
 reader) and reports the Python memory held (tracemalloc) after
-``--memory-warmup`` frames and at the end.
+``--memory-warmup`` frames and at the end, with the window sizes whose
+detectors the pipeline held at both points (a slow frame calls for larger
+windows: their detector is made then, and is no growth per frame).
 """
 
 from __future__ import annotations
@@ -189,13 +191,14 @@ def memory_run(cfg: Config, catalogue, frames: int, warmup: int, seed: int) -> d
     stop = threading.Event()
     daemon = Daemon(cfg, source_factory=lambda: make_source(cfg), pipeline=Pipeline(cfg),
                     link=DaemonLink(cfg), notifier=Notifier(""))
-    seen = {"k": 0, "windowed": 0, "held": {}}
+    seen = {"k": 0, "windowed": 0, "held": {}, "cells": {}}
 
     def on_frame(report):
         k = seen["k"] = seen["k"] + 1
         seen["windowed"] += any(name.startswith("windows.") for name in report.stages_ms)
         if k in (warmup, frames):
             seen["held"][k] = tracemalloc.get_traced_memory()[0]
+            seen["cells"][k] = daemon.pipeline.window_cells
         if k == frames:
             daemon.request_stop()
 
@@ -216,6 +219,7 @@ def memory_run(cfg: Config, catalogue, frames: int, warmup: int, seed: int) -> d
     held = seen["held"]
     return {"frames": seen["k"], "windowed_frames": seen["windowed"], "warmup": warmup,
             "growth_bytes": held.get(frames, math.nan) - held.get(warmup, math.nan),
+            "window_cells": {"warmup": seen["cells"].get(warmup), "end": seen["cells"].get(frames)},
             "wall_s": wall, "fps": seen["k"] / wall}
 
 
@@ -260,7 +264,9 @@ def _markdown(machine: dict, args, results: list[dict], memory: dict | None) -> 
         lines += ["", f"Whole service, {memory['frames']} frames ({memory['windowed_frames']} "
                   f"tracked in windows), {memory['fps']:.0f} fps with tracemalloc on: Python "
                   f"memory held grew {memory['growth_bytes'] / 1024:.1f} KiB from frame "
-                  f"{memory['warmup']} to the last."]
+                  f"{memory['warmup']} to the last; window detectors held (window px) then "
+                  f"{memory['window_cells']['warmup']}, at the end "
+                  f"{memory['window_cells']['end']} (each about 40 MiB)."]
     return "\n".join(lines) + "\n"
 
 

@@ -295,6 +295,7 @@ class DefaultDetector:
         self.psf_noise = np.zeros(_PSF_STARS, np.float32)
         self.psf_meter = PsfMeter(layout.stride, psf_radius, _PSF_STARS, cfg.psf_min_stars)
         self.psf_tracker = PsfTracker(cfg.psf_sigma_px, cfg.psf_memory_frames)
+        self.measure_psf = cfg.psf_measure   # a caller given the PSF may skip step 4's meter
         self.psf = self.psf_tracker.current
         self.fit = PixelGaussianFit(_CHUNK, 2 * max_radius + 1)
         self.centroider = WindowedCentroider(
@@ -422,7 +423,7 @@ class DefaultDetector:
         # then rewrites the pixels it changes in both
         self._float_wait = self.filter_slabs.start(_copy, self.input.work, self.work_float)
         timer.start("psf")
-        self.psf = self.psf_tracker.update(self._measure_psf() if self.cfg.psf_measure
+        self.psf = self.psf_tracker.update(self._measure_psf() if self.measure_psf
                                            else None)
         self._configure(self.psf.sigma_px)
         self._refine_impulses()
@@ -430,7 +431,7 @@ class DefaultDetector:
         for _ in range(_SECOND_LOOKS):
             # too few bright stars for step 4: the centroided candidates measure the PSF,
             # and a frame whose PSF is far from the one used is searched again with it
-            if not self.cfg.psf_measure or self.psf.stars > 0:
+            if not self.measure_psf or self.psf.stars > 0:
                 break
             measured = self._psf_from_candidates()
             if measured is None or abs(math.log(measured.sigma_px / self.psf_sigma_used)) < (

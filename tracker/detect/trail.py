@@ -50,11 +50,11 @@ def normal_cdf(z: np.ndarray) -> np.ndarray:
 class TrailFit:
     """Fits trailed stars of a PSF of ``sigma`` px; at most ``iterations`` Gauss-Newton steps.
 
-    The steps stop once none moves a centre by ``tolerance`` px or more.
+    A star's steps stop once one moves its centre by less than ``tolerance`` px.
     """
 
     def __init__(self, sigma: float, iterations: int = 6, max_shift: float = 3.0,
-                 tolerance: float = 1e-3) -> None:
+                 tolerance: float = 0.01) -> None:
         self.sigma = float(sigma)
         self.tolerance = float(tolerance)
         self.min_length = MIN_TRAIL_SIGMAS * self.sigma     # shorter trails are not fitted
@@ -87,12 +87,16 @@ class TrailFit:
         px = (gx.ravel()[None, :] + ix[:, None]).astype(np.float64)
         py = (gy.ravel()[None, :] + iy[:, None]).astype(np.float64)
         u = smear[rows] / length[rows, None]                     # unit vector along the trail
+        lengths = length[rows]
         c = out[rows].copy()
+        active = np.arange(len(rows))            # stars still moving (converged ones stop)
         for _ in range(self.iterations):
-            g, dg = self._model(px - c[:, 0:1], py - c[:, 1:2], u, length[rows])
-            flux = np.einsum("ij,ij->i", g, data) / np.maximum(np.einsum("ij,ij->i", g, g),
-                                                               1e-30)
-            resid = data - flux[:, None] * g
+            data_a, c_a = data[active], c[active]
+            g, dg = self._model(px[active] - c_a[:, 0:1], py[active] - c_a[:, 1:2], u[active],
+                                lengths[active])
+            flux = np.einsum("ij,ij->i", g, data_a) / np.maximum(np.einsum("ij,ij->i", g, g),
+                                                                 1e-30)
+            resid = data_a - flux[:, None] * g
             jac = flux[:, None, None] * dg                       # (n, 2, pixels): d model / dc
             jac = np.concatenate((jac, g[:, None, :]), axis=1)   # and d model / dF
             hess = np.einsum("npk,nqk->npq", jac, jac)
@@ -100,8 +104,9 @@ class TrailFit:
             good = np.abs(np.linalg.det(hess)) > 1e-30
             step = np.zeros_like(grad)
             step[good] = np.linalg.solve(hess[good], grad[good][..., None])[..., 0]
-            c = c + step[:, :2]
-            if not np.abs(step[:, :2]).max() >= self.tolerance:     # converged (or NaN)
+            c[active] = c_a + step[:, :2]
+            active = active[np.abs(step[:, :2]).max(axis=1) >= self.tolerance]  # NaN stops
+            if len(active) == 0:
                 break
         ok = np.all(np.isfinite(c), axis=1) & np.all(np.abs(c - out[rows]) <= self.max_shift,
                                                      axis=1)

@@ -12,7 +12,8 @@ centroids, flags). The detector is whatever ``make(shape)`` returns for the
 mosaic's shape (tracker.detect.make_detector): that function is the whole
 interface, so another detector takes over by being made there.
 
-Stars are returned in frame pixels (tracker.detect.result's convention).
+Stars are returned in frame pixels (tracker.detect.result's convention),
+with the PSF the mosaic's detector used.
 The filter and the background see the neighbouring window across a
 window's inner borders, so a star centred within ``margin`` px of an
 inner border is dropped (the planner sizes windows so that a predicted
@@ -52,11 +53,12 @@ class WindowDetector:
         self.cell = int(cell)
         self.cells = int(cells)
         self.columns = min(int(columns), self.cells)
+        shape = self.mosaic_shape(cell, cells, columns)
         self.frame_shape = (int(frame_shape[0]), int(frame_shape[1]))
         if self.cell > min(self.frame_shape):
             raise ValueError(f"window of {cell} px larger than the frame {frame_shape}")
-        rows = -(-self.cells // self.columns)
-        self.mosaic = np.zeros((rows * self.cell, self.columns * self.cell), dtype)
+        rows = shape[0] // self.cell
+        self.mosaic = np.zeros(shape, dtype)
         self.detector = make(self.mosaic.shape)
         self.margin = int(margin)
         self.table = StarTable(max_stars)
@@ -69,6 +71,12 @@ class WindowDetector:
         # frame (x0, y0) of each slot; slots beyond ``cells`` repeat the first windows
         # (a blank slot would lower its neighbours' background noise)
         self.placed = np.zeros((rows * self.columns, 2), np.intp)
+
+    @staticmethod
+    def mosaic_shape(cell: int, cells: int, columns: int = 8) -> tuple[int, int]:
+        """(rows, cols) px of the mosaic of ``cells`` windows of ``cell`` px."""
+        across = min(int(columns), int(cells))
+        return -(-int(cells) // across) * int(cell), across * int(cell)
 
     def detect(self, image: np.ndarray, origins: np.ndarray) -> Detections:
         """Stars in the windows whose top-left pixels (x0, y0) are ``origins`` (cells, 2).
@@ -106,7 +114,9 @@ class WindowDetector:
         flags = out["flags"][:n] & ~np.uint16(StarFlag.EDGE)
         flags[edge] |= StarFlag.EDGE
         out["flags"][:n] = flags
-        return self.table.result(n, found.reason, found.counters, found.stages_ms)
+        return Detections(out[:n], found.reason, found.counters, found.stages_ms,
+                          found.psf_sigma_px, found.psf_ellipticity, found.psf_angle_deg,
+                          found.psf_stars)
 
     def _inside(self, offset: np.ndarray, origin: np.ndarray, axis: int) -> np.ndarray:
         """Offsets within a window at least ``margin`` from its inner borders.

@@ -32,7 +32,15 @@ import numpy as np
 
 from tracker.camera import CameraModel
 
-__all__ = ["TrackPrediction", "pixel_jacobian", "predict_positions"]
+__all__ = ["TrackPrediction", "pixel_jacobian", "predict_positions", "informative",
+           "CENTROID_FLOOR_PX", "CENTROID_SPREAD_PX"]
+
+# A predicted star's centroid 1-sigma per axis, sigma^2 = FLOOR^2 + (SPREAD / snr)^2: the
+# background-limited term of a Gaussian PSF's centroid is sqrt(2) s / SNR (s the
+# pixel-integrated PSF sigma, about 1.25 px for the default 1.2 px optics), and a floor
+# (pixel response, residual pixel-phase bias) holds for the brightest stars.
+CENTROID_FLOOR_PX = 0.05
+CENTROID_SPREAD_PX = 1.75
 
 
 @dataclass(frozen=True)
@@ -79,3 +87,31 @@ def predict_positions(camera: CameraModel, R: np.ndarray, vectors: np.ndarray,
     sigma = np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 0.0))
     smear = J @ (-np.asarray(omega, dtype=np.float64) * exposure_s)
     return xy, sigma, smear
+
+
+def informative(xy: np.ndarray, snr: np.ndarray, centre: tuple[float, float],
+                share: float) -> np.ndarray:
+    """Indices (ascending) of the fewest stars that carry ``share`` of the attitude's information.
+
+    ``xy`` (m, 2) px predicted positions, ``snr`` (m,) their predicted SNR;
+    ``centre`` the boresight's pixel. Each star weighs w = 1 / sigma^2 of
+    its centroid (``CENTROID_FLOOR_PX``, ``CENTROID_SPREAD_PX``); the
+    cross-boresight information is sum w, roll's sum w rho^2 (rho its
+    distance from ``centre``): roll is held by stars far out. The stars with
+    the largest shares of each that add up to ``share`` of its total are
+    taken, the union of both sets; the input's order is kept (brightest
+    first when it was).
+    """
+    m = len(xy)
+    if m == 0:
+        return np.zeros(0, np.intp)
+    w = 1.0 / (CENTROID_FLOOR_PX ** 2
+               + np.square(CENTROID_SPREAD_PX / np.maximum(np.asarray(snr, float), 1e-6)))
+    rho2 = np.square(xy[:, 0] - centre[0]) + np.square(xy[:, 1] - centre[1])
+    keep = np.zeros(m, bool)
+    for info in (w, w * rho2):
+        order = np.argsort(-info, kind="stable")
+        total = np.cumsum(info[order])
+        k = min(m, int(np.searchsorted(total, share * total[-1])) + 1)
+        keep[order[:k]] = True
+    return np.flatnonzero(keep)

@@ -78,7 +78,12 @@ from tracker.detect.result import StarFlag
 from tracker.identify.database import BoundDatabase
 from tracker.identify.lens import LensFilter, LensPrior, LensState, fit_frame
 from tracker.identify.lost import Hypothesis, PatternSearch, WorkBudget
-from tracker.identify.predict import TrackPrediction, pixel_jacobian, predict_positions
+from tracker.identify.predict import (
+    TrackPrediction,
+    informative,
+    pixel_jacobian,
+    predict_positions,
+)
 from tracker.identify.verify import Projector, false_match_probability, match_nearest
 from tracker.timing import StageTimer
 
@@ -268,7 +273,9 @@ class Solver:
         self._windowed = 0   # windowed tracking frames in a row (the lens fit's turn)
         self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
         self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
+        self._snr: np.ndarray | None = None   # this frame's stars' SNR, as _prepare ordered them
         self._faintest = math.inf   # catalogue magnitude of the faintest stars matched lately
+        self._snr_zero: float | None = None   # log10 SNR + 0.4 mag of the last matches
 
     def lens_camera(self) -> CameraModel:
         """The camera model with the filtered focal length and k1 (one object per estimate)."""
@@ -314,6 +321,7 @@ class Solver:
             idx, xy = idx[keep], xy[keep]
         if len(idx) < max(4, self.cfg.min_matched):
             return "too_few_stars"   # no match of fewer could be accepted
+        self._snr = np.asarray(stars["snr"], dtype=np.float64)[idx] if "snr" in names else None
         return idx, xy, (flux[idx] if has_flux else None)
 
     # -- public --------------------------------------------------------------
@@ -401,18 +409,21 @@ class Solver:
     def prediction(self, t_ns: int, exposure_s: float, observer=None) -> TrackPrediction | None:
         """The stars tracking follows into a frame at ``t_ns``, or None without a rate.
 
-        The ``identify.track_window_stars`` brightest catalogue stars predicted
-        in the image no fainter than ``track_window_mag_margin`` below the
-        faintest star matched lately (the last solution's faintest, or the
-        limit before less ``_FAINTEST_DECAY_MAG`` a frame, whichever is
-        fainter: fainter stars would not be found, their windows would cost
-        without a star; a star a little fainter found in its window raises
-        the limit for the next frame),
-        then the ``track_window_unknown`` brightest unidentified stars of the
-        last frame, each with its uncertainty and its smear over
-        ``exposure_s`` (tracker.identify.predict). Needs a recent solution and
-        a rate (the first frame after a lock has none: its stars are searched
-        in the whole frame).
+        The catalogue stars predicted in the image no fainter than
+        ``track_window_mag_margin`` below the faintest star matched lately
+        (the last solution's faintest, or the limit before less
+        ``_FAINTEST_DECAY_MAG`` a frame, whichever is fainter: fainter stars
+        would not be found, their windows would cost without a star; a star a
+        little fainter found in its window raises the limit for the next
+        frame); of those, once a frame's matches gave the SNR a magnitude
+        predicts, the fewest that carry ``track_window_information`` of the
+        attitude's information (tracker.identify.predict.informative), at
+        most ``track_window_stars``, brightest first; then the
+        ``track_window_unknown`` brightest unidentified stars of the last
+        frame, each with its uncertainty and its smear over ``exposure_s``
+        (tracker.identify.predict). Needs a recent solution and a rate (the
+        first frame after a lock has none: its stars are searched in the
+        whole frame).
         """
         if not self._can_track(t_ns) or self._rate is None or self._last_P is None:
             return None
@@ -425,7 +436,7 @@ class Solver:
         mag = self._cat_mag[cat_idx]
         order = np.argsort(mag, kind="stable")
         bright = np.count_nonzero(mag <= self._faintest + cfg.track_window_mag_margin)
-        cat_idx = cat_idx[order[:min(bright, cfg.track_window_stars)]]
+        cat_idx = cat_idx[order[:bright]]
         ref = self._cat_vectors[cat_idx]
         if beta is not None:
             ref = aberrate(ref, beta)
@@ -434,9 +445,16 @@ class Solver:
         P = self._last_P + self._rate_P * dt * dt + np.eye(3) * accel * accel
         xy, sigma, smear = predict_positions(camera, R, vectors, P, -self._rate, exposure_s)
         inside = camera.in_frame(xy)
+        named = np.flatnonzero(inside[:len(cat_idx)])
+        if self._snr_zero is not None:
+            snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[cat_idx[named]])
+            named = named[informative(xy[named], snr, (camera.cx, camera.cy),
+                                      cfg.track_window_information)]
+        rows = np.concatenate((named[:cfg.track_window_stars],
+                               len(cat_idx) + np.flatnonzero(inside[len(cat_idx):])))
         catalogue = np.concatenate((cat_idx, np.full(len(vectors) - len(cat_idx), -1)))
-        return TrackPrediction(R=R, xy=xy[inside], sigma_px=sigma[inside],
-                               smear_px=smear[inside], catalogue=catalogue[inside], dt_s=dt)
+        return TrackPrediction(R=R, xy=xy[rows], sigma_px=sigma[rows], smear_px=smear[rows],
+                               catalogue=catalogue[rows], dt_s=dt)
 
     def smear_px(self, xy: np.ndarray, t_ns: int, exposure_s: float) -> np.ndarray | None:
         """(n, 2) travel of image positions ``xy`` over an exposure at ``t_ns``, px.
@@ -608,7 +626,13 @@ class Solver:
         if n < 4:
             return None
         ref = self._seen(cat_idx[which[ok]])
-        faintest = float(self._cat_mag[cat_idx[which[ok]]].max())
+        mags = self._cat_mag[cat_idx[which[ok]]]
+        if self._snr is not None:
+            snr = self._snr[ok]
+            seen = snr > 0
+            if seen.any():
+                self._snr_zero = float(np.median(np.log10(snr[seen]) + 0.4 * mags[seen]))
+        faintest = float(mags.max())
         if math.isfinite(self._faintest):
             faintest = max(faintest, self._faintest - _FAINTEST_DECAY_MAG)
         self._faintest = faintest
