@@ -203,15 +203,20 @@ def run(args, cfg) -> int:
     encoder = Encoder(Direction.TC)
     port_name, sends = split_port(args.port, args.send)
     commands = [build_command(encoder, words) for words in sends]
-    log = None
-    if args.log:
-        log = open_output(args.log, "--log", "ab" if args.log_format == "raw" else "a")
     try:
         port = serial.serial_for_url(port_name, baudrate=args.baud or cfg.link.baudrate,
                                      timeout=0.1)
     except (serial.SerialException, OSError, ValueError) as exc:
-        close_output(log)
         raise UserError(f"cannot open {port_name}: {exc}") from None
+    log = None
+    if args.log:
+        # made once the port is open (and its stale input dropped): a log that exists means
+        # every byte from now on is logged, which tracker demo waits for
+        try:
+            log = open_output(args.log, "--log", "ab" if args.log_format == "raw" else "a")
+        except UserError:
+            port.close()
+            raise
     decoder = StreamDecoder(Direction.TM, validate=False)
     counts: dict[str, int] = {}
     gaps: dict[str, int] = {}
