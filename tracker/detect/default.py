@@ -410,12 +410,15 @@ class DefaultDetector:
             grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
                        upper=True, dark_side=self.dark_side)
             self.sky_model = sky_noise_model(self.level, self.noise, self.saturation)
-        grid.upsample(self.level, self.bg)
+        # the background's interpolation on the filter's worker thread, the impulse
+        # limit's here (the median has the impulse stage's worker)
+        bg_wait = self.filter_slabs.start(grid.upsample, self.level, self.bg)
         np.multiply(self.noise, self.cfg.impulse_sigma, out=self.float_grid)
         np.clip(self.float_grid, 0.0, 65535.0, out=self.float_grid)
         np.rint(self.float_grid, out=self.float_grid)
         np.copyto(self.int_grid, self.float_grid, casting="unsafe")
         grid.upsample(self.int_grid, self.impulse_limit)
+        bg_wait()
         timer.start("impulses")
         self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
                                                self.limit_pad, self.impulse_limit))
