@@ -410,9 +410,9 @@ class DefaultDetector:
             grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
                        upper=True, dark_side=self.dark_side)
             self.sky_model = sky_noise_model(self.level, self.noise, self.saturation)
-        # the background's interpolation on the filter's worker thread, the impulse
-        # limit's here (the median has the impulse stage's worker)
-        bg_wait = self.filter_slabs.start(grid.upsample, self.level, self.bg)
+        # the background's interpolation on the impulse stage's worker thread, queued
+        # behind the median (so no third thread), while the impulse limit's is made here
+        bg_wait = self.impulses.slabs.start(grid.upsample, self.level, self.bg)
         np.multiply(self.noise, self.cfg.impulse_sigma, out=self.float_grid)
         np.clip(self.float_grid, 0.0, 65535.0, out=self.float_grid)
         np.rint(self.float_grid, out=self.float_grid)
