@@ -111,18 +111,18 @@ class BackgroundGrid:
         self.tile_scratch = np.zeros(int(capacity), np.int32)
 
     def stats(self, padded: np.ndarray, level: np.ndarray, noise: np.ndarray,
-              floor: float, upper: bool = False, minus: np.ndarray | None = None,
+              floor: float, upper: bool = False, minus: bool = False,
               dark_side: np.ndarray | None = None) -> None:
         """Per-tile level and noise (grid shape, units of ``padded``) into the given arrays.
 
-        ``padded`` is float32 or uint16. With ``minus`` (float32, padded like
-        ``padded``) the statistics are those of ``padded - minus``, computed
-        on the sampled pixels only. Tiles marked in ``dark_side`` (bool, grid
-        shape) take both from the darker part of their samples (the 6th to
-        37th percentile: level their mean, noise the 10th-30th percentile
-        distance over 0.757, its value for a Gaussian): a tile across a
-        horizon or the edge of glare then has the sky's level and noise,
-        not a blend of sky and ground.
+        ``padded`` is float32 or uint16. With ``minus`` the statistics are
+        those of ``padded`` less the image the last :meth:`sample_minus` call
+        read, computed on the sampled pixels only. Tiles marked in
+        ``dark_side`` (bool, grid shape) take both from the darker part of
+        their samples (the 6th to 37th percentile: level their mean, noise the
+        10th-30th percentile distance over 0.757, its value for a Gaussian): a
+        tile across a horizon or the edge of glare then has the sky's level
+        and noise, not a blend of sky and ground.
 
         With ``upper`` the noise is also at least the distance from the level
         up to the 84.13th percentile, and at least the standard deviation of
@@ -134,7 +134,7 @@ class BackgroundGrid:
         all three agree.
         """
         m = self.samples.shape[-1]
-        if padded.dtype == self.int_samples.dtype and minus is None:
+        if padded.dtype == self.int_samples.dtype and not minus:
             # sorted as integers (twice as fast), the same order of the same values
             np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
             self.int_samples.sort(axis=-1)
@@ -145,8 +145,7 @@ class BackgroundGrid:
                 np.copyto(self.samples, self.int_samples)
             else:
                 np.take(padded.ravel(), self.index, out=self.samples, mode="clip")
-            if minus is not None:
-                np.take(minus.ravel(), self.index, out=self.minus_samples, mode="clip")
+            if minus:
                 np.subtract(self.samples, self.minus_samples, out=self.samples)
             self.samples.sort(axis=-1)
         _mean(self.middle, self.level_raw)
@@ -175,6 +174,12 @@ class BackgroundGrid:
             self._dark_side(dark_side)
         np.maximum(self.raw, floor, out=self.raw)
         self._smooth(self.raw, noise)
+
+    def sample_minus(self, minus: np.ndarray) -> None:
+        """Read ``minus`` (float32, padded like the frames) at the sampled pixels, for
+        the :meth:`stats` calls with ``minus`` until the next call (one gather of an
+        image fixed for a frame, which a worker thread can make ahead)."""
+        np.take(minus.ravel(), self.index, out=self.minus_samples, mode="clip")
 
     def _dark_side(self, dark_side: np.ndarray) -> None:
         """Noise of the marked tiles from their 10th-30th percentile samples."""

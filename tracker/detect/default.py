@@ -51,11 +51,13 @@ handled, sigma 3.5 px):
 
 The Gaussian of step 5 and the threshold tests of steps 4 and 6 run in
 ``detect.threads`` horizontal slabs at once (tracker.detect.slabs; the
-result does not depend on the thread count). With more than one thread two
+result does not depend on the thread count). With more than one thread
 full-frame passes also run on a worker thread beside Python work that does
-not need them: the median of step 3 while step 2 works out the background
-(it needs only the frame; the ``background`` stage's time includes it and
-``impulses`` does not), and the float copy of step 5 while step 4 measures
+not need them: the median of step 3, then the background's interpolation
+to full size, while step 2 works out the background and the impulse limit
+(the median needs only the frame; the ``background`` stage's time includes
+it and ``impulses`` does not); and the float copy of step 5, with the
+background read at the filtered statistics' samples, while step 4 measures
 the PSF (the impulses' second pass then rewrites the pixels it changes in
 both copies).
 
@@ -148,10 +150,6 @@ _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its ta
 def effective_sigma(psf_sigma_px: float) -> float:
     """Sigma of a Gaussian PSF after integration over a square pixel, px."""
     return math.sqrt(psf_sigma_px ** 2 + 1.0 / 12.0)
-
-
-def _copy(src: np.ndarray, dst: np.ndarray) -> None:
-    np.copyto(dst, src)
 
 
 def _sigma_step_of(sigma_px: float) -> int:
@@ -410,18 +408,23 @@ class DefaultDetector:
             grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
                        upper=True, dark_side=self.dark_side)
             self.sky_model = sky_noise_model(self.level, self.noise, self.saturation)
-        grid.upsample(self.level, self.bg)
+        # the background's interpolation on the impulse stage's worker thread, queued
+        # behind the median (so no third thread), while the impulse limit's is made here
+        bg_wait = self.impulses.slabs.start(grid.upsample, self.level, self.bg)
         np.multiply(self.noise, self.cfg.impulse_sigma, out=self.float_grid)
         np.clip(self.float_grid, 0.0, 65535.0, out=self.float_grid)
         np.rint(self.float_grid, out=self.float_grid)
         np.copyto(self.int_grid, self.float_grid, casting="unsafe")
         grid.upsample(self.int_grid, self.impulse_limit)
+        bg_wait()
         timer.start("impulses")
         self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
                                                self.limit_pad, self.impulse_limit))
-        # the filter's float copy, beside the PSF's measurement; the second impulse pass
-        # then rewrites the pixels it changes in both
-        self._float_wait = self.filter_slabs.start(_copy, self.input.work, self.work_float)
+        # the filter's float copy and the background at the filtered statistics' samples,
+        # beside the PSF's measurement; the second impulse pass then rewrites the pixels
+        # it changes in both copies
+        self._float_wait = self.filter_slabs.start(self._filter_inputs, self.input.work,
+                                                   self.work_float)
         timer.start("psf")
         self.psf = self.psf_tracker.update(self._measure_psf() if self.measure_psf
                                            else None)
@@ -458,6 +461,12 @@ class DefaultDetector:
         self.counters.update(self.impulses.refine(self.input.padded, self.bg_pad,
                                                   self.limit_pad, contrast, ring,
                                                   mirror_pad=self.float_pad))
+
+    def _filter_inputs(self, work: np.ndarray, work_float: np.ndarray) -> None:
+        """The filter's float copy of the frame; the background at the grid's samples
+        (the same for every search of the frame)."""
+        np.copyto(work_float, work)
+        self.grid.sample_minus(self.bg_pad)
 
     def _mark_dark_side(self) -> bool:
         """Mark the tiles that straddle the edge of a bright body; whether there are any.
@@ -519,7 +528,7 @@ class DefaultDetector:
         timer.start("filter")
         self.filter_slabs.run(self._matched_filter, self.work_float, self.filt)
         grid.stats(self.filt_pad, self.residual, self.noise_f,
-                   QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=self.bg_pad,
+                   QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=True,
                    dark_side=self.dark_side if self.dark_side.any() else None)
         self._tail_threshold()
         self._make_threshold(1.0)
