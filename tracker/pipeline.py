@@ -63,6 +63,7 @@ from tracker.config import Config
 from tracker.detect import Detections, Detector, make_detector
 from tracker.detect.default import DefaultDetector, effective_sigma
 from tracker.detect.shared_psf import SharedPsf
+from tracker.detect.stamps import StampDetector
 from tracker.detect.trail import TrailFit
 from tracker.detect.windowed import later_within
 from tracker.detect.windows import WindowDetector
@@ -108,6 +109,7 @@ class Pipeline:
         self._solver: Solver | None = None
         self._catalogue: Catalogue | None = None
         self._window_detectors: OrderedDict[tuple, WindowDetector] = OrderedDict()
+        self._stamp_detectors: OrderedDict[tuple, StampDetector] = OrderedDict()
         self._trail = TrailFit(effective_sigma(cfg.detect.psf_sigma_px))
         self._windowed = 0   # windowed frames so far (the PSF meter's turn in the windows)
         idf = cfg.identify
@@ -214,6 +216,20 @@ class Pipeline:
             inner.measure_psf = measure_psf and self.cfg.detect.psf_measure
         return found
 
+    def stamp_detector_for(self, cell: int, image: np.ndarray,
+                           bit_depth: int) -> StampDetector:
+        """The lean window detector (tracker.detect.stamps) for windows of ``cell`` px of
+        frames like ``image`` (the :data:`DETECTORS_KEPT` last used sizes kept)."""
+        key = (cell, image.dtype.str, bit_depth)
+        found = self._stamp_detectors.pop(key, None)
+        if found is None:
+            while len(self._stamp_detectors) >= DETECTORS_KEPT:
+                self._stamp_detectors.popitem(last=False)
+            found = StampDetector(self.cfg.detect, image.shape, cell, self._planner.capacity,
+                                  self._planner.reach, bit_depth, image.dtype)
+        self._stamp_detectors[key] = found
+        return found
+
     def process(self, image: np.ndarray, bit_depth: int, t_ns: int,
                 observer: Observer | None = None,
                 exposure_s: float | None = None) -> FrameResult:
@@ -283,9 +299,16 @@ class Pipeline:
             return None
         self._windowed += 1
         measure_psf = self._windowed % self.cfg.identify.track_lens_every == 0
+        full = self.detector_for(image.shape, bit_depth)
+        stamps = (self.cfg.identify.track_stamps and isinstance(full, DefaultDetector)
+                  and not (measure_psf and self.cfg.detect.psf_measure))
         t1 = time.perf_counter_ns()
-        detections = self.window_detector_for(plan.cell, image, bit_depth, measure_psf).detect(
-            image, plan.origins)
+        if stamps:
+            detections = self.stamp_detector_for(plan.cell, image, bit_depth).detect(
+                image, plan.origins, full.psf_tracker.current)
+        else:
+            detections = self.window_detector_for(plan.cell, image, bit_depth,
+                                                  measure_psf).detect(image, plan.origins)
         t2 = time.perf_counter_ns()
         stages = {f"windows.{k}": v for k, v in detections.stages_ms.items()}
         stages["track.plan"] = (t1 - t0) / 1e6
