@@ -314,9 +314,10 @@ class Pipeline:
         stages["track.plan"] = (t1 - t0) / 1e6
         stages["windows.gather"] = (t2 - t1) / 1e6 - sum(detections.stages_ms.values())
         stars = self._untrailed(image, detections.stars, t_ns, exposure_s, stages)
-        named = prediction.catalogue[:plan.stars]
+        named = prediction.catalogue[:plan.stars] >= 0
         solution = solver.solve(stars, t_ns, observer, search_area_px=plan.area_px,
-                                predicted=named[named >= 0])
+                                predicted=prediction.catalogue[:plan.stars][named],
+                                predicted_xy=prediction.xy[:plan.stars][named])
         if not solution.ok:
             return None
         stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})

@@ -327,7 +327,8 @@ class Solver:
     # -- public --------------------------------------------------------------
 
     def solve(self, stars, t_ns: int, observer=None, search_area_px: float | None = None,
-              predicted: np.ndarray | None = None) -> Solution:
+              predicted: np.ndarray | None = None,
+              predicted_xy: np.ndarray | None = None) -> Solution:
         """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module.
 
         ``observer``: the frame's tracker.astrometry.observer.Observer (None: unknown).
@@ -337,7 +338,11 @@ class Solver:
         tried, against those stars, its false-match odds taken over that
         area, the lens fitted on one such frame in ``track_lens_every``; a
         frame that does not verify fails with ``not_verified`` and keeps the
-        state (the caller searches the whole frame next).
+        state (the caller searches the whole frame next). ``predicted_xy``
+        (len(predicted), 2): where :meth:`prediction` put those stars, px
+        (at the attitude, lens and observer this frame is tracked from): the
+        gated pass pairs each with the nearest star found
+        there (within ``track_gate_px``), with no projection of its own.
         """
         timer = self._timer
         timer.reset()
@@ -355,7 +360,7 @@ class Solver:
         subset = None if search_area_px is None else np.asarray(predicted)
         if self._can_track(t_ns):
             timer.start("track")
-            R = self._track(xy, lens_cam, t_ns, subset)
+            R = self._track(xy, lens_cam, t_ns, subset, predicted_xy)
             if R is not None:
                 timer.start("refine")
                 sol = self._finish(R, None, xy, flux, idx, hip, t_ns, "tracking", None, None,
@@ -492,11 +497,16 @@ class Solver:
         inside = camera.in_frame(pix)
         return subset[inside], pix[inside]
 
-    def _track(self, xy, camera: CameraModel, t_ns: int,
-               subset: np.ndarray | None = None) -> np.ndarray | None:
-        """The attitude from the predicted one after one gated pass, or None."""
-        R = self._predicted(t_ns)
-        cat_idx, pred = self._project(R, camera, subset)
+    def _track(self, xy, camera: CameraModel, t_ns: int, subset: np.ndarray | None = None,
+               subset_xy: np.ndarray | None = None) -> np.ndarray | None:
+        """The attitude from the predicted one after one gated pass, or None.
+
+        ``subset_xy``: the pixels of ``subset`` at the predicted attitude, if known.
+        """
+        if subset_xy is None:
+            cat_idx, pred = self._project(self._predicted(t_ns), camera, subset)
+        else:
+            cat_idx, pred = subset, subset_xy
         which, _ = match_nearest(xy, pred, self.cfg.track_gate_px)
         ok = which >= 0
         if np.count_nonzero(ok) < self.cfg.min_matched:
