@@ -379,23 +379,21 @@ class StampDetector:
         """Gaussian-windowed centroids (tracker.detect.windowed: weight of the PSF's sigma,
         gain 2) of stamps ``grid`` (m, side, side) from (x, y) px off their centres."""
         inv = -0.5 / self.expected_size
+        pos = np.stack((x, y))                                   # (2, m)
         for _ in range(self.cfg.centroid_iterations):
-            ex = self.stamp_axis[None, :] - x[:, None]
-            ey = self.stamp_axis[None, :] - y[:, None]
-            gx, gy = np.exp(inv * ex * ex), np.exp(inv * ey * ey)
-            cols = np.einsum("nij,ni->nj", grid, gy) * gx        # weighted along y
-            rows = np.einsum("nij,nj->ni", grid, gx) * gy        # weighted along x
+            e = self.stamp_axis[None, None, :] - pos[:, :, None]  # (2, m, side)
+            g = np.exp(inv * e * e)
+            cols = np.einsum("nij,ni->nj", grid, g[1]) * g[0]     # weighted along y
+            rows = np.einsum("nij,nj->ni", grid, g[0]) * g[1]     # weighted along x
             total = cols.sum(axis=1)
-            ok = total > 0
-            step_x = np.where(ok, 2.0 * np.einsum("ij,ij->i", cols, ex) / np.where(ok, total, 1),
-                              0.0)
-            step_y = np.where(ok, 2.0 * np.einsum("ij,ij->i", rows, ey) / np.where(ok, total, 1),
-                              0.0)
-            x = np.clip(x + step_x, -_MAX_SHIFT_PX, _MAX_SHIFT_PX)
-            y = np.clip(y + step_y, -_MAX_SHIFT_PX, _MAX_SHIFT_PX)
-            if max(np.abs(step_x).max(), np.abs(step_y).max()) < self.cfg.centroid_tolerance_px:
+            step = np.stack((np.einsum("ij,ij->i", cols, e[0]), np.einsum("ij,ij->i", rows, e[1])))
+            step *= 2.0 / np.where(total > 0, total, np.inf)      # no light: no step
+            moved = np.clip(pos + step, -_MAX_SHIFT_PX, _MAX_SHIFT_PX)
+            done = np.abs(moved - pos).max() < self.cfg.centroid_tolerance_px
+            pos = moved
+            if done:
                 break
-        return x, y
+        return pos[0], pos[1]
 
     def _vertex(self, win: np.ndarray, py: np.ndarray,
                 px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
