@@ -15,20 +15,26 @@ and a rate, the frame is detected only in windows around the stars it
 predicts plus a sweeping slice of the frame (tracker.identify.windows,
 tracker.detect.windows) and solved from those; if they do not verify (or
 the prediction is too uncertain for the largest window) the whole frame is
-detected and solved as without a lock. A detector is kept per window size
+detected and solved as without a lock. With ``identify.track_stamps`` the
+windows go to the lean stacked-window detector (tracker.detect.stamps; one
+kept per window size, the :data:`DETECTORS_KEPT` last used) with the PSF
+the full frames measured, except on one windowed frame in
+``identify.track_lens_every``, which measures the PSF in its windows: that
+frame (and every windowed frame without ``track_stamps``, or with another
+detection method) goes through the full detector over a mosaic of the
+windows (tracker.detect.windows). A mosaic detector is kept per window size
 (the :data:`DETECTORS_KEPT` last used), each made by ``make_detector`` for
 its mosaic of windows, with one slab thread (a mosaic is too small to cut),
 buffers for pixels above threshold and impulses no larger than the mosaic
 (about 40 MiB a detector instead of 70) and background tiles of a third of
 the window: the star sits in the middle
-tile, whose 3 x 3 median then takes the window's own sky around it. The
-windows take the PSF the full frames measured as given, and measure it in
-the windows (folded into the same running estimate) on one windowed frame
-in ``identify.track_lens_every`` (tracker.detect.shared_psf).
+tile, whose 3 x 3 median then takes the window's own sky around it. It
+takes the PSF the full frames measured as given, and measures it in
+the windows (folded into the same running estimate: tracker.detect.shared_psf).
 A windowed frame's ``stages_ms``: ``track.plan`` (from the frame's start to
-its windows: prediction and planning), ``windows.<stage>`` (the detector's
-stages on the mosaic), ``windows.gather`` (the mosaic and what the
-detector does outside its stages), ``trail``, ``identify.<stage>``.
+its windows: prediction and planning), ``windows.<stage>`` (the window
+detector's stages), ``windows.gather`` (what the window detector does
+outside its stages), ``trail``, ``identify.<stage>``.
 
 Trailed stars: with a rate known, stars whose travel over the exposure
 (from the rate: tracker.identify.predict) is long are re-centred by a

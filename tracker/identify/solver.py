@@ -437,11 +437,18 @@ class Solver:
         R = self._predicted(t_ns)
         camera = self.lens_camera()
         beta = None if observer is None else observer.beta()
-        cat_idx, _ = self._cat_proj.predict(R, camera, beta=beta)
+        cat_idx, pix = self._cat_proj.predict(R, camera, beta=beta)   # in the image
         mag = self._cat_mag[cat_idx]
         order = np.argsort(mag, kind="stable")
-        bright = np.count_nonzero(mag <= self._faintest + cfg.track_window_mag_margin)
-        cat_idx = cat_idx[order[:bright]]
+        bright = order[:np.count_nonzero(mag <= self._faintest + cfg.track_window_mag_margin)]
+        cat_idx = cat_idx[bright]
+        named = np.arange(len(cat_idx))
+        if self._snr_zero is not None:
+            snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[cat_idx])
+            named = informative(pix[bright], snr, (camera.cx, camera.cy),
+                                cfg.track_window_information)
+        cat_idx = cat_idx[named[:cfg.track_window_stars]]
+        # positions, uncertainties and smears of the stars given windows only
         ref = self._cat_vectors[cat_idx]
         if beta is not None:
             ref = aberrate(ref, beta)
@@ -449,14 +456,8 @@ class Solver:
         accel = math.radians(cfg.track_accel_deg_s2) * 0.5 * dt * dt
         P = self._last_P + self._rate_P * dt * dt + np.eye(3) * accel * accel
         xy, sigma, smear = predict_positions(camera, R, vectors, P, -self._rate, exposure_s)
-        inside = camera.in_frame(xy)
-        named = np.flatnonzero(inside[:len(cat_idx)])
-        if self._snr_zero is not None:
-            snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[cat_idx[named]])
-            named = named[informative(xy[named], snr, (camera.cx, camera.cy),
-                                      cfg.track_window_information)]
-        rows = np.concatenate((named[:cfg.track_window_stars],
-                               len(cat_idx) + np.flatnonzero(inside[len(cat_idx):])))
+        rows = np.concatenate((np.arange(len(cat_idx)),
+                               len(cat_idx) + np.flatnonzero(camera.in_frame(xy[len(cat_idx):]))))
         catalogue = np.concatenate((cat_idx, np.full(len(vectors) - len(cat_idx), -1)))
         return TrackPrediction(R=R, xy=xy[rows], sigma_px=sigma[rows], smear_px=smear[rows],
                                catalogue=catalogue[rows], dt_s=dt)
