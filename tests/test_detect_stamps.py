@@ -11,6 +11,7 @@ from tracker.config import Config
 from tracker.detect import make_detector
 from tracker.detect.result import StarFlag
 from tracker.detect.stamps import StampDetector
+from tracker.pipeline import Pipeline
 from tracker.sim import render_sky
 
 CELL = 24
@@ -115,3 +116,30 @@ def test_the_same_frame_gives_the_same_stars_and_no_new_buffers():
     second = detector.detect(frame.image, origins, psf).stars
     np.testing.assert_array_equal(first, second)
     assert buffers == [id(detector.stack), id(detector.filt), id(detector.table.stars)]
+
+
+def test_the_pipeline_tracks_with_stamps_and_measures_the_psf_on_its_turns():
+    """Windowed frames go to the stamp detector, but one in ``track_lens_every``, which
+    measures the PSF through the mosaic; ``track_stamps: false`` is the mosaic always."""
+    cfg = Config()
+    cat = load_catalogue(epoch_year=2026.0, mag_limit=cfg.catalogue.mag_limit)
+    R = matrix_from_radec_roll(*np.radians((84.0, -3.0, 10.0)))
+    every = 3
+    for stamps in (True, False):
+        cfg_arm = dataclasses.replace(cfg, identify=dataclasses.replace(
+            cfg.identify, track_lens_every=every, track_stamps=stamps))
+        pipe = Pipeline(cfg_arm)
+        rng = np.random.default_rng(4)
+        kinds = []
+        for i in range(9):
+            r = pipe.process(render_sky(cfg.camera, cat, R, cfg.sim, rng).image, 10, int(i * 1e8))
+            assert r.solution.ok
+            if r.windows:
+                kinds.append("stack" if "windows.stack" in r.stages_ms else "mosaic")
+        assert len(kinds) >= 5
+        if stamps:
+            assert kinds.count("mosaic") == sum(1 for k in range(1, len(kinds) + 1)
+                                                if k % every == 0)
+            assert kinds.count("stack") >= 3
+        else:
+            assert set(kinds) == {"mosaic"}
