@@ -367,6 +367,11 @@ class IdentifyConfig:
     track_windows: bool = knob(True, "tracking with a known rate detects only in windows "
                                "around the predicted stars, plus a slice of the frame; "
                                "false: the whole frame every frame")
+    track_stamps: bool = knob(True, "windowed tracking detects in its windows by the lean "
+                              "stacked-window detector (tracker.detect.stamps), the full "
+                              "detector over a mosaic of them only on the frames that "
+                              "measure the PSF (one in track_lens_every); false: the "
+                              "mosaic every frame")
     track_window_stars: int = knob(32, "tracking: most predicted catalogue stars given a "
                                    "window (those carrying track_window_information, "
                                    "brightest first)", "stars", min=4, max=1024)

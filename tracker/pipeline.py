@@ -15,20 +15,26 @@ and a rate, the frame is detected only in windows around the stars it
 predicts plus a sweeping slice of the frame (tracker.identify.windows,
 tracker.detect.windows) and solved from those; if they do not verify (or
 the prediction is too uncertain for the largest window) the whole frame is
-detected and solved as without a lock. A detector is kept per window size
+detected and solved as without a lock. With ``identify.track_stamps`` the
+windows go to the lean stacked-window detector (tracker.detect.stamps; one
+kept per window size, the :data:`DETECTORS_KEPT` last used) with the PSF
+the full frames measured, except on one windowed frame in
+``identify.track_lens_every``, which measures the PSF in its windows: that
+frame (and every windowed frame without ``track_stamps``, or with another
+detection method) goes through the full detector over a mosaic of the
+windows (tracker.detect.windows). A mosaic detector is kept per window size
 (the :data:`DETECTORS_KEPT` last used), each made by ``make_detector`` for
 its mosaic of windows, with one slab thread (a mosaic is too small to cut),
 buffers for pixels above threshold and impulses no larger than the mosaic
 (about 40 MiB a detector instead of 70) and background tiles of a third of
 the window: the star sits in the middle
-tile, whose 3 x 3 median then takes the window's own sky around it. The
-windows take the PSF the full frames measured as given, and measure it in
-the windows (folded into the same running estimate) on one windowed frame
-in ``identify.track_lens_every`` (tracker.detect.shared_psf).
+tile, whose 3 x 3 median then takes the window's own sky around it. It
+takes the PSF the full frames measured as given, and measures it in
+the windows (folded into the same running estimate: tracker.detect.shared_psf).
 A windowed frame's ``stages_ms``: ``track.plan`` (from the frame's start to
-its windows: prediction and planning), ``windows.<stage>`` (the detector's
-stages on the mosaic), ``windows.gather`` (the mosaic and what the
-detector does outside its stages), ``trail``, ``identify.<stage>``.
+its windows: prediction and planning), ``windows.<stage>`` (the window
+detector's stages), ``windows.gather`` (what the window detector does
+outside its stages), ``trail``, ``identify.<stage>``.
 
 Trailed stars: with a rate known, stars whose travel over the exposure
 (from the rate: tracker.identify.predict) is long are re-centred by a
@@ -63,6 +69,7 @@ from tracker.config import Config
 from tracker.detect import Detections, Detector, make_detector
 from tracker.detect.default import DefaultDetector, effective_sigma
 from tracker.detect.shared_psf import SharedPsf
+from tracker.detect.stamps import StampDetector
 from tracker.detect.trail import TrailFit
 from tracker.detect.windowed import later_within
 from tracker.detect.windows import WindowDetector
@@ -108,6 +115,7 @@ class Pipeline:
         self._solver: Solver | None = None
         self._catalogue: Catalogue | None = None
         self._window_detectors: OrderedDict[tuple, WindowDetector] = OrderedDict()
+        self._stamp_detectors: OrderedDict[tuple, StampDetector] = OrderedDict()
         self._trail = TrailFit(effective_sigma(cfg.detect.psf_sigma_px))
         self._windowed = 0   # windowed frames so far (the PSF meter's turn in the windows)
         idf = cfg.identify
@@ -214,6 +222,20 @@ class Pipeline:
             inner.measure_psf = measure_psf and self.cfg.detect.psf_measure
         return found
 
+    def stamp_detector_for(self, cell: int, image: np.ndarray,
+                           bit_depth: int) -> StampDetector:
+        """The lean window detector (tracker.detect.stamps) for windows of ``cell`` px of
+        frames like ``image`` (the :data:`DETECTORS_KEPT` last used sizes kept)."""
+        key = (cell, image.dtype.str, bit_depth)
+        found = self._stamp_detectors.pop(key, None)
+        if found is None:
+            while len(self._stamp_detectors) >= DETECTORS_KEPT:
+                self._stamp_detectors.popitem(last=False)
+            found = StampDetector(self.cfg.detect, image.shape, cell, self._planner.capacity,
+                                  self._planner.reach, bit_depth, image.dtype)
+        self._stamp_detectors[key] = found
+        return found
+
     def process(self, image: np.ndarray, bit_depth: int, t_ns: int,
                 observer: Observer | None = None,
                 exposure_s: float | None = None) -> FrameResult:
@@ -283,17 +305,25 @@ class Pipeline:
             return None
         self._windowed += 1
         measure_psf = self._windowed % self.cfg.identify.track_lens_every == 0
+        full = self.detector_for(image.shape, bit_depth)
+        stamps = (self.cfg.identify.track_stamps and isinstance(full, DefaultDetector)
+                  and not (measure_psf and self.cfg.detect.psf_measure))
         t1 = time.perf_counter_ns()
-        detections = self.window_detector_for(plan.cell, image, bit_depth, measure_psf).detect(
-            image, plan.origins)
+        if stamps:
+            detections = self.stamp_detector_for(plan.cell, image, bit_depth).detect(
+                image, plan.origins, full.psf_tracker.current)
+        else:
+            detections = self.window_detector_for(plan.cell, image, bit_depth,
+                                                  measure_psf).detect(image, plan.origins)
         t2 = time.perf_counter_ns()
         stages = {f"windows.{k}": v for k, v in detections.stages_ms.items()}
         stages["track.plan"] = (t1 - t0) / 1e6
         stages["windows.gather"] = (t2 - t1) / 1e6 - sum(detections.stages_ms.values())
         stars = self._untrailed(image, detections.stars, t_ns, exposure_s, stages)
-        named = prediction.catalogue[:plan.stars]
+        named = prediction.catalogue[:plan.stars] >= 0
         solution = solver.solve(stars, t_ns, observer, search_area_px=plan.area_px,
-                                predicted=named[named >= 0])
+                                predicted=prediction.catalogue[:plan.stars][named],
+                                predicted_xy=prediction.xy[:plan.stars][named])
         if not solution.ok:
             return None
         stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})

@@ -327,7 +327,8 @@ class Solver:
     # -- public --------------------------------------------------------------
 
     def solve(self, stars, t_ns: int, observer=None, search_area_px: float | None = None,
-              predicted: np.ndarray | None = None) -> Solution:
+              predicted: np.ndarray | None = None,
+              predicted_xy: np.ndarray | None = None) -> Solution:
         """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module.
 
         ``observer``: the frame's tracker.astrometry.observer.Observer (None: unknown).
@@ -337,7 +338,11 @@ class Solver:
         tried, against those stars, its false-match odds taken over that
         area, the lens fitted on one such frame in ``track_lens_every``; a
         frame that does not verify fails with ``not_verified`` and keeps the
-        state (the caller searches the whole frame next).
+        state (the caller searches the whole frame next). ``predicted_xy``
+        (len(predicted), 2): where :meth:`prediction` put those stars, px
+        (at the attitude, lens and observer this frame is tracked from): the
+        gated pass pairs each with the nearest star found
+        there (within ``track_gate_px``), with no projection of its own.
         """
         timer = self._timer
         timer.reset()
@@ -355,7 +360,7 @@ class Solver:
         subset = None if search_area_px is None else np.asarray(predicted)
         if self._can_track(t_ns):
             timer.start("track")
-            R = self._track(xy, lens_cam, t_ns, subset)
+            R = self._track(xy, lens_cam, t_ns, subset, predicted_xy)
             if R is not None:
                 timer.start("refine")
                 sol = self._finish(R, None, xy, flux, idx, hip, t_ns, "tracking", None, None,
@@ -432,11 +437,18 @@ class Solver:
         R = self._predicted(t_ns)
         camera = self.lens_camera()
         beta = None if observer is None else observer.beta()
-        cat_idx, _ = self._cat_proj.predict(R, camera, beta=beta)
+        cat_idx, pix = self._cat_proj.predict(R, camera, beta=beta)   # in the image
         mag = self._cat_mag[cat_idx]
         order = np.argsort(mag, kind="stable")
-        bright = np.count_nonzero(mag <= self._faintest + cfg.track_window_mag_margin)
-        cat_idx = cat_idx[order[:bright]]
+        bright = order[:np.count_nonzero(mag <= self._faintest + cfg.track_window_mag_margin)]
+        cat_idx = cat_idx[bright]
+        named = np.arange(len(cat_idx))
+        if self._snr_zero is not None:
+            snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[cat_idx])
+            named = informative(pix[bright], snr, (camera.cx, camera.cy),
+                                cfg.track_window_information)
+        cat_idx = cat_idx[named[:cfg.track_window_stars]]
+        # positions, uncertainties and smears of the stars given windows only
         ref = self._cat_vectors[cat_idx]
         if beta is not None:
             ref = aberrate(ref, beta)
@@ -444,14 +456,8 @@ class Solver:
         accel = math.radians(cfg.track_accel_deg_s2) * 0.5 * dt * dt
         P = self._last_P + self._rate_P * dt * dt + np.eye(3) * accel * accel
         xy, sigma, smear = predict_positions(camera, R, vectors, P, -self._rate, exposure_s)
-        inside = camera.in_frame(xy)
-        named = np.flatnonzero(inside[:len(cat_idx)])
-        if self._snr_zero is not None:
-            snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[cat_idx[named]])
-            named = named[informative(xy[named], snr, (camera.cx, camera.cy),
-                                      cfg.track_window_information)]
-        rows = np.concatenate((named[:cfg.track_window_stars],
-                               len(cat_idx) + np.flatnonzero(inside[len(cat_idx):])))
+        rows = np.concatenate((np.arange(len(cat_idx)),
+                               len(cat_idx) + np.flatnonzero(camera.in_frame(xy[len(cat_idx):]))))
         catalogue = np.concatenate((cat_idx, np.full(len(vectors) - len(cat_idx), -1)))
         return TrackPrediction(R=R, xy=xy[rows], sigma_px=sigma[rows], smear_px=smear[rows],
                                catalogue=catalogue[rows], dt_s=dt)
@@ -492,11 +498,16 @@ class Solver:
         inside = camera.in_frame(pix)
         return subset[inside], pix[inside]
 
-    def _track(self, xy, camera: CameraModel, t_ns: int,
-               subset: np.ndarray | None = None) -> np.ndarray | None:
-        """The attitude from the predicted one after one gated pass, or None."""
-        R = self._predicted(t_ns)
-        cat_idx, pred = self._project(R, camera, subset)
+    def _track(self, xy, camera: CameraModel, t_ns: int, subset: np.ndarray | None = None,
+               subset_xy: np.ndarray | None = None) -> np.ndarray | None:
+        """The attitude from the predicted one after one gated pass, or None.
+
+        ``subset_xy``: the pixels of ``subset`` at the predicted attitude, if known.
+        """
+        if subset_xy is None:
+            cat_idx, pred = self._project(self._predicted(t_ns), camera, subset)
+        else:
+            cat_idx, pred = subset, subset_xy
         which, _ = match_nearest(xy, pred, self.cfg.track_gate_px)
         ok = which >= 0
         if np.count_nonzero(ok) < self.cfg.min_matched:

@@ -1,0 +1,409 @@
+"""Lean detection in tracking's windows: one stack of windows, every step vectorised over it.
+
+Tracking knows where its stars will be (tracker.identify.windows plans the
+windows, all of one side ``cell``). :class:`StampDetector` works on the
+``cells`` windows of a frame as one (cells, cell, cell) stack gathered by
+fancy indexing, with no Python loop over windows or stars:
+
+1. ``stack``: the windows copied out of the frame.
+2. ``background``: each window's sky level and pixel noise from its border
+   ring (``RING_PX`` wide): the median, and the RMS of the pixels within 3
+   sigma of it (sigma from the interquartile range; the RMS corrected
+   for the clip, at least the quantisation noise). The planner centres a
+   predicted star in its window, so the ring holds sky.
+3. ``filter``: the matched filter (a Gaussian of the pixel-integrated PSF's
+   sigma, cut at round(2 sigma) like the full frame's) over the stack,
+   background subtracted, by one OpenCV call on the stack seen as one tall
+   image; a window's first and last rows mix with its neighbours' there,
+   which ``margin`` keeps peaks away from.
+4. ``peaks``: local maxima (3 x 3) of the filtered stack above k times each
+   window's filtered noise, k the full frame's for the false-alarm budget
+   ``detect.false_alarms_per_frame`` (tracker.detect.threshold: the same
+   stars as the full frame, fewer false ones in the smaller area), at least
+   ``margin`` px from a window's inner borders and a stamp's reach from the
+   frame's edge; one per frame pixel (windows overlap), most significant
+   first, at most ``max_candidates``.
+5. ``impulses``: a stamp of radius 3 sigma around each peak is read from
+   the frame, and every pixel of it tested against its 3 x 3 median with
+   the full frame's rule (tracker.detect.impulse): standing off it by more
+   than ``detect.impulse_sigma`` pixel noise and by more than the contrast
+   no star a tenth sharper than the PSF reaches, it is an impulse and takes
+   the median. A peak whose brightest central pixel is one, with less light
+   in its eight neighbours than such a star always has, is a hot pixel or
+   a one-pixel hit and is dropped (counted ``hot_pixels``).
+6. ``centroid``: the fit of the pixel-integrated PSF (tracker.detect.fit)
+   to the stamp, two Gauss-Newton steps from the filtered peak's parabolic
+   vertex (within 0.003 px RMS of the converged centres); stars
+   closer than the blend radius (``detect.blend_radius_px``, else twice the
+   centroid's) to another peak are BLENDED and take the Gaussian-windowed
+   centroid instead, as the full frame does (tracker.detect.windowed).
+   Flux (the stamp's sum), peak, npix and SNR (the Gaussian-weighted sum over its noise, as
+   tracker.detect.windowed reports it) and the weighted second moments:
+   spots narrower than ``detect.sharp_size_ratio`` of the PSF, or narrow
+   and elongated like a particle's track, are rejected (counted
+   ``sharp_spots`` and ``cosmic_rays``) when at least ``detect.sharp_min_snr``
+   significant; ELONGATED, SATURATED, BLENDED flags as the full frame sets
+   them. A star seen in two overlapping windows is reported once.
+
+Not done here, unlike the full frame: deblending by the profile's dip, the
+roughness and sky-sector tests, EXTENDED (no frame-wide reference in a few
+windows) and the PSF's measurement (the pipeline measures it with the full
+detector over a mosaic of the windows on one frame in
+``identify.track_lens_every``: tracker.detect.windows).
+
+Fixed memory: the stack, its filtered copy and the star table are made at
+construction for ``cells`` windows of ``cell`` px; the per-peak arrays are
+temporaries of at most ``max_candidates`` rows.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from tracker.config import DetectConfig
+from tracker.detect.background import QUANTISATION_NOISE_ADU
+from tracker.detect.fit import PixelGaussianFit
+from tracker.detect.impulse import psf_contrast, psf_ring
+from tracker.detect.psf import PsfEstimate
+from tracker.detect.result import Detections, StarFlag
+from tracker.detect.stars import StarTable
+from tracker.detect.threshold import gaussian_peak_threshold
+from tracker.detect.windowed import later_within
+from tracker.timing import StageTimer
+
+__all__ = ["StampDetector", "RING_PX"]
+
+RING_PX = 2                    # width of the border ring a window's sky is taken from
+_IQR_SIGMAS = 1.349            # a Gaussian's interquartile range in sigmas
+_CLIP_SIGMAS = 3.0             # the ring's noise: RMS of the pixels within this many sigma
+_CLIPPED_VARIANCE = 0.9707     # ... which keeps this share of a Gaussian's variance
+_SIGMA_STEP = math.log(1.03)   # PSF sigmas used in steps of 3 % (as the full frame does)
+_IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
+_TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
+_TRACK_ELLIPTICITY = 0.3       # ... this elongated is a particle's track
+_FIT_STEPS = 2                 # Gauss-Newton steps of the fit from the parabolic vertex:
+                               # within 0.003 px RMS of converged (0.02 px at most)
+_MAX_SHIFT_PX = 1.5            # the fit's centre stays this close to the peak pixel
+_SAME_STAR_PX = 1.0            # one star's detections in overlapping windows lie closer
+_NEIGHBOURS = np.ones((3, 3), np.uint8)
+
+
+def _effective_sigma(sigma_px: float) -> float:
+    """The pixel-integrated PSF's sigma, px (tracker.detect.default.effective_sigma)."""
+    return math.sqrt(sigma_px ** 2 + 1.0 / 12.0)
+
+
+class StampDetector:
+    """Finds stars in ``cells`` windows of ``cell`` px of frames of ``frame_shape``.
+
+    ``cfg``: the detector's settings (the false-alarm budget, impulse and
+    shape tests, saturation); ``bit_depth`` sets full scale; ``margin`` the
+    PSF's reach, px (module docstring, step 4); ``dtype`` the frames'
+    (uint8 or uint16).
+    """
+
+    def __init__(self, cfg: DetectConfig, frame_shape: tuple[int, int], cell: int, cells: int,
+                 margin: int, bit_depth: int, dtype: type, max_candidates: int = 256) -> None:
+        self.cfg = cfg
+        self.frame_shape = (int(frame_shape[0]), int(frame_shape[1]))
+        self.cell, self.cells = int(cell), int(cells)
+        if self.cell > min(self.frame_shape):
+            raise ValueError(f"window of {cell} px larger than the frame {frame_shape}")
+        self.margin = int(margin)
+        self.saturation = (float(2 ** int(bit_depth) - 1) if cfg.saturation_adu is None
+                           else float(cfg.saturation_adu))
+        self.max_candidates = int(max_candidates)
+        n, c = self.cells, self.cell
+        dy, dx = np.mgrid[0:c, 0:c]
+        self.offsets = (dy * self.frame_shape[1] + dx).astype(np.intp)     # (c, c)
+        self.index = np.zeros((n, c, c), np.intp)
+        self.raw = np.zeros((n, c, c), dtype)
+        self.stack = np.zeros((n, c, c), np.float32)
+        self.filt = np.zeros((n * c, c), np.float32)
+        self.dilated = np.zeros((n * c, c), np.float32)
+        self.above = np.zeros((n, c, c), np.bool_)
+        self.peak = np.zeros((n, c, c), np.bool_)
+        ring = np.zeros((c, c), bool)
+        ring[:RING_PX], ring[-RING_PX:], ring[:, :RING_PX], ring[:, -RING_PX:] = (True,) * 4
+        self.ring = np.flatnonzero(ring.ravel())
+        k = len(self.ring)
+        self.ring_ranks = [k // 4, (k - 1) // 2, k // 2, (3 * k) // 4]  # quartiles, median
+        self.level = np.zeros(n, np.float32)
+        self.noise = np.zeros(n, np.float32)
+        self.axis = np.arange(c)
+        self.table = StarTable(cfg.max_stars)
+        self.timer = StageTimer()
+        self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
+                         "sharp_spots": 0, "candidates": 0, "left_out": 0}
+        max_radius = int(math.ceil(3.0 * _effective_sigma(3.5)))
+        self.fit = PixelGaussianFit(self.max_candidates, 2 * max_radius + 1, _FIT_STEPS)
+        self._step = None
+
+    def _configure(self, sigma_px: float) -> None:
+        """Filter, threshold, stamps and impulse constants for an optical PSF sigma (px),
+        rebuilt only when it moves to another 3 % step."""
+        step = int(round(math.log(sigma_px) / _SIGMA_STEP))
+        if step == self._step:
+            return
+        self._step = step
+        sigma_px = math.exp(step * _SIGMA_STEP)
+        sigma = _effective_sigma(sigma_px)
+        self.sigma, self.expected_size = sigma, sigma ** 2
+        half = max(1, int(round(2.0 * sigma)))
+        kernel = cv2.getGaussianKernel(2 * half + 1, sigma, cv2.CV_64F).ravel()
+        self.kernel = kernel.astype(np.float32)
+        self.filter_gain = float(np.sum(kernel ** 2))     # filtered / pixel noise
+        # the full frame's threshold: the windows report the stars it would
+        area = self.frame_shape[0] * self.frame_shape[1]
+        self.k_sigma = gaussian_peak_threshold(self.cfg.false_alarms_per_frame, area, kernel)
+        self.radius = int(math.ceil(3.0 * sigma))
+        self.fit.configure(self.radius, sigma_px)
+        r = self.radius
+        dy, dx = np.mgrid[-r - 1:r + 2, -r - 1:r + 2]   # the stamp and a ring for its median
+        self.wide_offsets = (dy * self.frame_shape[1] + dx).astype(np.intp).ravel()
+        self.stamp_axis = np.arange(-r, r + 1, dtype=np.float64)
+        side = 2 * r + 1
+        centre = (side * side) // 2
+        self.centre9 = centre + np.array([-side - 1, -side, -side + 1, -1, 0, 1,
+                                          side - 1, side, side + 1])
+        self.contrast = (self.cfg.impulse_contrast if self.cfg.impulse_contrast is not None
+                         else 0.5 * (1.0 + psf_contrast(_IMPULSE_PSF_MARGIN * sigma_px,
+                                                        worst_phase=True)))
+        self.ring_light = 0.5 * psf_ring(_IMPULSE_PSF_MARGIN * sigma_px)
+
+    def detect(self, image: np.ndarray, origins: np.ndarray, psf: PsfEstimate) -> Detections:
+        """Stars in the windows whose top-left pixels (x0, y0) are ``origins`` (cells, 2).
+
+        Every window lies inside ``image`` (the planner clips them); ``psf``
+        the frame's PSF (the full frames' running estimate).
+        """
+        timer = self.timer
+        timer.reset()
+        for key in self.counters:
+            self.counters[key] = 0
+        self._configure(psf.sigma_px)
+        timer.start("stack")
+        self._gather(image, origins)
+        timer.start("background")
+        self._background()
+        timer.start("filter")
+        np.subtract(self.raw, self.level[:, None, None], out=self.stack, casting="unsafe")
+        cv2.sepFilter2D(self.stack.reshape(self.filt.shape), cv2.CV_32F, self.kernel,
+                        self.kernel, dst=self.filt, borderType=cv2.BORDER_REFLECT)
+        timer.start("peaks")
+        win, py, px = self._peaks(origins)
+        timer.start("impulses")
+        stamps, keep = self._stamps(image, origins, win, py, px)
+        win, py, px, stamps = win[keep], py[keep], px[keep], stamps[keep]
+        timer.start("centroid")
+        count = self._measure(origins, win, py, px, stamps)
+        timer.stop()
+        return self.table.result(count, None, self.counters, timer.ms, psf)
+
+    def _gather(self, image: np.ndarray, origins: np.ndarray) -> None:
+        corner = origins[:, 1] * self.frame_shape[1] + origins[:, 0]
+        np.add(corner[:, None, None], self.offsets[None], out=self.index)
+        np.take(np.ascontiguousarray(image).reshape(-1), self.index, out=self.raw)
+
+    def _background(self) -> None:
+        """Each window's level and pixel noise from its border ring (module docstring)."""
+        ring = self.raw.reshape(self.cells, -1)[:, self.ring].astype(np.float32)
+        part = np.partition(ring, self.ring_ranks, axis=1)
+        q1, m0, m1, q3 = (part[:, k] for k in self.ring_ranks)
+        np.multiply(m0 + m1, 0.5, out=self.level)
+        # quartiles of whole ADU are coarse for a noise of a few ADU: they only set the
+        # clip of the RMS that gives the noise (Gaussian noise clipped at _CLIP_SIGMAS
+        # keeps _CLIPPED_VARIANCE of its variance)
+        clip = np.maximum((q3 - q1) * (_CLIP_SIGMAS / _IQR_SIGMAS), _CLIP_SIGMAS)
+        np.subtract(ring, self.level[:, None], out=ring)
+        inside = np.abs(ring) <= clip[:, None]
+        np.multiply(ring, ring, out=ring)
+        ring *= inside
+        var = ring.sum(axis=1) / np.maximum(inside.sum(axis=1), 1) / _CLIPPED_VARIANCE
+        np.sqrt(var, out=self.noise)
+        np.maximum(self.noise, QUANTISATION_NOISE_ADU, out=self.noise)
+
+    def _peaks(self, origins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(window, row, column) of the local maxima above threshold, most significant first."""
+        n, c = self.cells, self.cell
+        cv2.dilate(self.filt, _NEIGHBOURS, dst=self.dilated)
+        filt = self.filt.reshape(n, c, c)
+        np.greater_equal(filt, self.dilated.reshape(n, c, c), out=self.peak)
+        limit = (self.k_sigma * self.filter_gain) * self.noise
+        np.greater(filt, limit[:, None, None], out=self.above)
+        np.logical_and(self.peak, self.above, out=self.peak)
+        rows = self._inside(origins[:, 1], self.frame_shape[0])
+        cols = self._inside(origins[:, 0], self.frame_shape[1])
+        self.peak &= rows[:, :, None]
+        self.peak &= cols[:, None, :]
+        hits = np.flatnonzero(self.peak)
+        win, rest = np.divmod(hits, c * c)
+        py, px = np.divmod(rest, c)
+        significance = filt[win, py, px] / self.noise[win]
+        order = np.argsort(-significance, kind="stable")
+        win, py, px = win[order], py[order], px[order]
+        # overlapping windows see one star's peak at one frame pixel: kept once
+        at = (origins[win, 1] + py) * self.frame_shape[1] + origins[win, 0] + px
+        first = np.sort(np.unique(at, return_index=True)[1])[:self.max_candidates]
+        self.counters["candidates"] = len(first)
+        return win[first], py[first], px[first]
+
+    def _inside(self, origin: np.ndarray, limit: int) -> np.ndarray:
+        """(cells, cell) mask of the rows (or columns) a peak may take in each window:
+        ``margin`` from an inner border, a stamp's reach (its radius and the median's
+        ring) from the frame's edge."""
+        c, reach = self.cell, self.radius + 1
+        low = np.maximum(self.margin, reach - origin)
+        high = np.minimum(c - 1 - self.margin, limit - 1 - reach - origin)
+        return (self.axis[None, :] >= low[:, None]) & (self.axis[None, :] <= high[:, None])
+
+    def _stamps(self, image: np.ndarray, origins: np.ndarray, win: np.ndarray, py: np.ndarray,
+                px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each peak's stamp (m, side^2) of frame pixels, impulses replaced by their 3 x 3
+        median, and the mask of peaks kept (module docstring, step 5)."""
+        m = len(win)
+        side = 2 * self.radius + 1
+        big = side + 2
+        centre = (origins[win, 1] + py) * self.frame_shape[1] + origins[win, 0] + px
+        flat = np.ascontiguousarray(image).reshape(-1)
+        wide = flat[centre[:, None] + self.wide_offsets[None, :]].astype(np.float32)
+        keep = np.ones(m, bool)
+        if m == 0:
+            return np.zeros((0, side * side)), keep
+        # the median of each stamp's own pixels: the outer ring (only read by the median)
+        # keeps the stamps apart in the tall image OpenCV filters
+        median = cv2.medianBlur(wide.reshape(m * big, big), 3).reshape(m, big, big)
+        stamps = wide.reshape(m, big, big)[:, 1:-1, 1:-1].astype(np.float64)
+        median = median[:, 1:-1, 1:-1].reshape(m, -1)
+        stamps = stamps.reshape(m, -1)
+        level = self.level[win].astype(np.float64)[:, None]
+        noise = self.noise[win].astype(np.float64)[:, None]
+        rise = np.abs(stamps - median)
+        spike = (rise > self.cfg.impulse_sigma * noise) & (
+            rise > self.contrast * (np.maximum(stamps, median) - level))
+        # a candidate whose brightest central pixel is an impulse with no star's light
+        # around it is a hot pixel or a one-pixel hit
+        rows = np.arange(m)
+        brightest = self.centre9[np.argmax(stamps[:, self.centre9], axis=1)]
+        around = brightest[:, None] + (self.centre9 - self.centre9[4])[None, :]
+        value = stamps[rows, brightest] - level[:, 0]
+        ring = stamps[rows[:, None], around].sum(axis=1) - value - 9.0 * level[:, 0]
+        alone = spike[rows, brightest] & (ring < self.ring_light * value)
+        keep &= ~alone
+        self.counters["hot_pixels"] = int(np.count_nonzero(alone))
+        self.counters["impulse_pixels"] = int(np.count_nonzero(spike))
+        np.copyto(stamps, median, where=spike)
+        return stamps, keep
+
+    def _measure(self, origins: np.ndarray, win: np.ndarray, py: np.ndarray, px: np.ndarray,
+                 raw: np.ndarray) -> int:
+        """Centroid, photometry, shape tests and flags (module docstring, step 6); the
+        stars kept go to the table, most significant first. Returns their count."""
+        m = len(win)
+        if m == 0:
+            return 0
+        r = self.radius
+        side = 2 * r + 1
+        noise = self.noise[win].astype(np.float64)
+        signal = raw - self.level[win, None].astype(np.float64)
+        x, y = self._vertex(win, py, px)
+        # peaks closer than the blend radius (the full frame's): a single star's model
+        # fitted to a stamp holding two is pulled between them, while a Gaussian weight
+        # keeps most of the neighbour out
+        at_x = (origins[win, 0] + px).astype(np.float64)
+        at_y = (origins[win, 1] + py).astype(np.float64)
+        blend = 2.0 * r if self.cfg.blend_radius_px is None else float(self.cfg.blend_radius_px)
+        close = np.square(at_x[:, None] - at_x[None, :]) + np.square(at_y[:, None]
+                                                                      - at_y[None, :])
+        blended = np.count_nonzero(close <= blend * blend, axis=1) > 1   # itself and another
+        fit = np.flatnonzero(~blended)
+        if len(fit):
+            fx, fy = x[fit], y[fit]
+            self.fit.run(len(fit), signal[fit], raw[fit], fx, fy, noise[fit], self.saturation,
+                         _MAX_SHIFT_PX)
+            x[fit], y[fit] = fx, fy
+        pair = np.flatnonzero(blended)
+        if len(pair):
+            x[pair], y[pair] = self._windowed(signal[pair].reshape(-1, side, side), x[pair],
+                                              y[pair])
+        grid = signal.reshape(m, side, side)
+        ex = self.stamp_axis[None, :] - x[:, None]
+        ey = self.stamp_axis[None, :] - y[:, None]
+        inv = -0.5 / self.expected_size
+        gx, gy = np.exp(inv * ex * ex), np.exp(inv * ey * ey)
+        # the Gaussian weight is separable: profiles weighted along one axis, then moments
+        cols = np.einsum("nij,ni->nj", grid, gy) * gx          # (m, side) over columns
+        rows = np.einsum("nij,nj->ni", grid, gx) * gy          # (m, side) over rows
+        weighted = cols.sum(axis=1)
+        norm = np.sqrt(np.einsum("ij,ij->i", gx, gx) * np.einsum("ij,ij->i", gy, gy))
+        snr = weighted / (noise * norm)
+        total = np.maximum(weighted, 1e-12)
+        mxx = np.einsum("ij,ij->i", cols, ex * ex) / total
+        myy = np.einsum("ij,ij->i", rows, ey * ey) / total
+        mxy = np.einsum("nij,ni,nj->n", grid, gy * ey, gx * ex) / total
+        size = mxx + myy
+        ellipticity = np.hypot(mxx - myy, 2.0 * mxy) / np.maximum(size, 1e-12)
+        width = 0.5 * size * (1.0 - ellipticity) / (0.5 * self.expected_size)
+        judged = snr >= self.cfg.sharp_min_snr
+        spot = (weighted > 0) & (size > 0) & (ellipticity <= 1.0)
+        track = (width < _TRACK_WIDTH) & (ellipticity > _TRACK_ELLIPTICITY)
+        sharp = judged & (~spot | (width < self.cfg.sharp_size_ratio) | track)
+        self.counters["sharp_spots"] = int(np.count_nonzero(sharp))
+        self.counters["cosmic_rays"] = self.counters["sharp_spots"]
+        fx = origins[win, 0] + px + x
+        fy = origins[win, 1] + py + y
+        keep = np.flatnonzero(~sharp)
+        keep = keep[np.argsort(-snr[keep], kind="stable")]
+        keep = keep[~later_within(fx[keep], fy[keep], _SAME_STAR_PX)]
+        self.counters["left_out"] = max(0, len(keep) - self.table.capacity)
+        keep = keep[:self.table.capacity]
+        count = len(keep)
+        s = self.table.stars
+        s["x"][:count], s["y"][:count] = fx[keep], fy[keep]
+        s["flux"][:count] = signal[keep].sum(axis=1)
+        s["peak"][:count] = signal[keep][:, self.centre9].max(axis=1)
+        s["snr"][:count] = snr[keep]
+        s["npix"][:count] = np.count_nonzero(signal[keep] > 3.0 * noise[keep, None], axis=1)
+        flags = np.zeros(count, np.uint16)
+        flags[raw[keep][:, self.centre9].max(axis=1) >= self.saturation] |= StarFlag.SATURATED
+        flags[(ellipticity[keep] > self.cfg.elongation_max) & judged[keep]] |= StarFlag.ELONGATED
+        flags[blended[keep]] |= StarFlag.BLENDED
+        s["flags"][:count] = flags
+        return count
+
+    def _windowed(self, grid: np.ndarray, x: np.ndarray,
+                  y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gaussian-windowed centroids (tracker.detect.windowed: weight of the PSF's sigma,
+        gain 2) of stamps ``grid`` (m, side, side) from (x, y) px off their centres."""
+        inv = -0.5 / self.expected_size
+        pos = np.stack((x, y))                                   # (2, m)
+        for _ in range(self.cfg.centroid_iterations):
+            e = self.stamp_axis[None, None, :] - pos[:, :, None]  # (2, m, side)
+            g = np.exp(inv * e * e)
+            cols = np.einsum("nij,ni->nj", grid, g[1]) * g[0]     # weighted along y
+            rows = np.einsum("nij,nj->ni", grid, g[0]) * g[1]     # weighted along x
+            total = cols.sum(axis=1)
+            step = np.stack((np.einsum("ij,ij->i", cols, e[0]), np.einsum("ij,ij->i", rows, e[1])))
+            step *= 2.0 / np.where(total > 0, total, np.inf)      # no light: no step
+            moved = np.clip(pos + step, -_MAX_SHIFT_PX, _MAX_SHIFT_PX)
+            done = np.abs(moved - pos).max() < self.cfg.centroid_tolerance_px
+            pos = moved
+            if done:
+                break
+        return pos[0], pos[1]
+
+    def _vertex(self, win: np.ndarray, py: np.ndarray,
+                px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The filtered peak's parabolic vertex per axis, px from the peak pixel (|.| <= 0.5)."""
+        filt = self.filt.reshape(self.cells, self.cell, self.cell)
+        f0 = filt[win, py, px].astype(np.float64)
+        out = []
+        for lo, hi in ((filt[win, py, px - 1], filt[win, py, px + 1]),
+                       (filt[win, py - 1, px], filt[win, py + 1, px])):
+            curve = lo - 2.0 * f0 + hi
+            offset = np.where(curve < 0, 0.5 * (lo - hi) / np.where(curve < 0, curve, -1.0), 0.0)
+            out.append(np.clip(offset, -0.5, 0.5))
+        return out[0], out[1]
