@@ -113,6 +113,13 @@ def answered(keys):
     return lambda ps: all(k in replies(ps) for k in keys)
 
 
+def statuses_after(packets, key):
+    """The STATUS values decoded after the reply to the command ``key`` ((id, seq))."""
+    reply = next(i for i, p in enumerate(packets) if p.id in (MsgId.ACK, MsgId.NACK)
+                 and (p.values["cmd_id"], p.values["cmd_seq"]) == key)
+    return [p.values for p in packets[reply + 1:] if p.id == MsgId.STATUS]
+
+
 def attitudes(packets):
     return [p.values for p in packets if p.id == MsgId.ATTITUDE]
 
@@ -169,12 +176,15 @@ def test_a_hostile_flight_computer_leaves_the_daemon_up_and_answered(tmp_path):
     runner.start()
     must_answer = []
     try:
-        # 1. REQUEST_STATUS before the first frame (the camera is absent)
-        fc.wait_for(lambda ps: any(p.id == MsgId.STATUS for p in ps))
+        # 1. REQUEST_STATUS before the first frame (the camera is absent): once the daemon
+        # has found the camera missing (its first STATUS may predate that), the request is
+        # acknowledged and a STATUS follows the ACK (the link sends the reply first)
+        fc.wait_for(lambda ps: any(p.id == MsgId.STATUS and p.values["mode"] == Mode.FAULT
+                                   for p in ps))
         key = fc.send(MsgId.REQUEST_STATUS)
-        got = fc.wait_for(answered([key]))
+        got = fc.wait_for(lambda ps: key in replies(ps) and statuses_after(ps, key))
         assert replies(got)[key] == (MsgId.ACK, Reason.OK)
-        early = [p.values for p in got if p.id == MsgId.STATUS][-1]
+        early = statuses_after(got, key)[0]
         assert early["frames"] == 0 and early["last_error"] == ErrorCode.CAMERA_LOST
         assert early["mode"] == Mode.FAULT
         camera.present.set()

@@ -94,9 +94,10 @@ def test_the_installed_demo_runs_from_another_folder(installed):
     summary = json.loads((work / "demo" / "service.json").read_text())["link"]
     decoded = sum(json.loads(line)["name"] == "ATTITUDE"
                   for line in (work / "demo" / "fc.jsonl").read_text().splitlines())
-    # every attitude sent reached the FC; the first frame (the database built in the empty
-    # cache, lost in space) may be dropped as stale on a loaded machine, and is counted
-    assert decoded == summary["sent_attitude"] >= 3
+    # every attitude sent reached the FC; a frame's only excuse is a stale drop, counted: the
+    # first (the database built in the empty cache, lost in space) and, on a machine loaded
+    # by other work, the next
+    assert decoded == summary["sent_attitude"] >= 2
     assert decoded + summary.get("dropped_stale_attitude", 0) == 4
     assert list((Path(env["XDG_CACHE_HOME"]) / "startracker").glob("patterns_*.npz"))
 
