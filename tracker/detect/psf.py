@@ -73,6 +73,8 @@ _RING_FRACTION = 0.02
 _MAX_ELLIPTICITY = 0.5
 _BIN = math.log(1.10)
 _AGREE = math.log(1.15)
+_OPTICS_GAP = math.log(1.5)  # spots this much wider than the mode (at least two) ...
+_WIDER_STARS = 3             # ... measure the PSF if this many agree (or min_stars)
 
 
 @dataclass(frozen=True)
@@ -348,6 +350,15 @@ def _deconvolve_weight(p: dict) -> None:
         np.copyto(p[key], np.nan, where=bad)
 
 
+def _densest(log_s: np.ndarray) -> float:
+    """Centre of the densest bin of width _BIN of ``log_s`` (sliding in steps of a
+    quarter bin; ties: the last)."""
+    starts = np.arange(log_s.min() - _BIN, log_s.max() + _BIN / 4, _BIN / 4)
+    counts = np.count_nonzero((log_s[None, :] >= starts[:, None])
+                              & (log_s[None, :] < starts[:, None] + _BIN), axis=1)
+    return float(starts[len(starts) - 1 - np.argmax(counts[::-1])] + _BIN / 2)
+
+
 def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstimate | None:
     """The mode of the stars' sigmas and the median tensor of the stars near it.
 
@@ -357,13 +368,21 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
     if len(sigma) < min_stars:
         return None
     log_s = np.log(sigma)
-    # densest bin of width _BIN, sliding in steps of a quarter bin
-    starts = np.arange(log_s.min() - _BIN, log_s.max() + _BIN / 4, _BIN / 4)
-    counts = np.count_nonzero((log_s[None, :] >= starts[:, None])
-                              & (log_s[None, :] < starts[:, None] + _BIN), axis=1)
-    best = starts[len(starts) - 1 - np.argmax(counts[::-1])] + _BIN / 2  # ties: the last
+    best = _densest(log_s)
     agree = np.abs(log_s - best) <= _AGREE
-    if np.count_nonzero(agree) < min_stars:
+    wider = log_s > best + _OPTICS_GAP
+    if np.count_nonzero(wider) >= 2:
+        # spots far wider than the mode: the mode is particles' charge, which the optics
+        # never blurred, and the frame's stars are the wider spots (or, if they do not
+        # agree among themselves, unknown)
+        best = _densest(log_s[wider])
+        agree = wider & (np.abs(log_s - best) <= _AGREE)
+        if np.count_nonzero(agree) < min(min_stars, _WIDER_STARS):
+            return None
+    elif np.count_nonzero(agree) < (min(min_stars, _WIDER_STARS)
+                                    if np.count_nonzero(log_s < best - _OPTICS_GAP) >= 2
+                                    else min_stars):
+        # (beside particles' sharp spots, fewer stars measure the PSF)
         return None
     sel = (median(cxx[agree]), median(cyy[agree]), median(cxy[agree]))
     s_opt, e_opt, angle = pixel_tensor_to_optics(*sel)
