@@ -127,6 +127,7 @@ _TRACK_EXCESS = 0.35           # a spot this much more elongated than the frame'
 _NARROW_WIDTH = 0.7            # a spot this narrow (its PSF's = 1), unsaturated, ...
 _NARROW_SNR = 50.0             # ... at this SNR is a particle's charge, not a star
 _SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
+_CLIPPED_AREA = 0.6           # a saturated spot's flux/peak under this x the PSF's is sharp
 _REMNANT_WIDTH = 0.85          # a spot this narrow and ...
 _REMNANT_ROUGH = 3.0           # ... this rough (x a point source's) is a track's remnant
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
@@ -764,7 +765,10 @@ class DefaultDetector:
             merged = False
         # Shape tests against the PSF, for spots bright enough to measure; under
         # multiplicative noise a star's own pixels are spiky, so none applies.
-        judged = (v["snr"] >= self.cfg.sharp_min_snr) & (self.speckle_fit is None)
+        # A spot with a pixel at full scale is judged at any SNR: on glare a faint one's
+        # noise is high, but a star that bright has its shape
+        saturated = v["raw_peak"] >= self.saturation
+        judged = ((v["snr"] >= self.cfg.sharp_min_snr) | saturated) & (self.speckle_fit is None)
         # Second moment across the spot's narrowest axis: a PSF's is half its size,
         # and a star streaked by motion keeps it, while a cosmic-ray hit or track
         # is a pixel or so wide. Moments of no positive spot (what impulse
@@ -785,7 +789,6 @@ class DefaultDetector:
             # over two pixels is as wide as a sharp PSF), a saturated one the more so (a
             # saturated star's clipped top is as round as its PSF)
             excess = v["ellipticity"] - self.psf.ellipticity
-            saturated = v["raw_peak"] >= self.saturation
             track |= (excess > _TRACK_EXCESS) | (saturated & (excess > _SATURATED_TRACK_EXCESS))
             # a bright spot well narrower than the frame's stars across their narrowest
             # axis (a trailed frame's stars are narrow across the trail): a particle's
@@ -795,6 +798,11 @@ class DefaultDetector:
             narrowest_psf = 1.0 - self.psf.ellipticity
             track |= ((width < _NARROW_WIDTH * narrowest_psf) & (v["snr"] >= _NARROW_SNR)
                       & ~saturated)
+        # clipping only widens a star (its flux over its clipped peak grows), so a
+        # saturated spot holding less light than the PSF's area times its clipped peak
+        # is sharper than the optics: a particle's charge
+        track |= saturated & (v["flux"] < _CLIPPED_AREA * 2.0 * math.pi * self.expected_size
+                              * v["peak"])
         narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
         sharp = judged & (narrow | (rough > self.cfg.rough_ratio))
         n_sharp = int(np.count_nonzero(sharp))
