@@ -313,6 +313,7 @@ class DefaultDetector:
         self.tail = NoiseTail(self.grid.index)
         self.textured = np.zeros(grid_shape, np.bool_)
         self.dark_side = np.zeros(grid_shape, np.bool_)
+        self.beside_body = np.zeros(grid_shape, np.bool_)   # sky tiles beside a body's
         self.sky_model = (0.0, 0.0, 0.0)   # the frame's sky noise model (_mark_dark_side)
         self.near_texture = np.zeros(grid_shape, np.bool_)
         self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
@@ -418,6 +419,7 @@ class DefaultDetector:
         np.copyto(self.int_grid, self.float_grid, casting="unsafe")
         grid.upsample(self.int_grid, self.impulse_limit)
         bg_wait()
+        grid.cap_in_tiles(self.level, self.bg, self.beside_body)
         timer.start("impulses")
         self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
                                                self.limit_pad, self.impulse_limit))
@@ -488,6 +490,14 @@ class DefaultDetector:
         sky_noise = np.sqrt(var0 + slope * np.maximum(dark - level0, 0.0))
         np.logical_and(grid.level_raw - dark > _DARK_SIDE_SIGMAS * sky_noise,
                        grid.level_raw < 0.9 * self.saturation, out=self.dark_side)
+        # sky tiles beside a saturated one (lit ground, the Earth) and the dark side of an
+        # edge: their pixels keep the tile's own level and threshold, not a blend with
+        # the saturated level beyond the edge (beside glare's core the tiles are bright
+        # themselves, and its gradient is followed)
+        bright = (grid.level_raw >= _SATURATED_TILE * self.saturation).view(np.uint8)
+        cv2.dilate(bright, _TILE_NEIGHBOURS, dst=self.beside_body.view(np.uint8))
+        self.beside_body &= grid.level_raw - level0 < _DARK_SIDE_SIGMAS * math.sqrt(var0)
+        self.beside_body |= self.dark_side
         return bool(self.dark_side.any())
 
     def psf_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -701,6 +711,7 @@ class DefaultDetector:
         np.add(self.float_grid, self.residual, out=self.float_grid)
         np.add(self.float_grid, self.level, out=self.float_grid)
         self.grid.upsample(self.float_grid, self.threshold)
+        self.grid.cap_in_tiles(self.float_grid, self.threshold, self.beside_body)
         self._raise_edges()
 
     def _centre_plateaus(self, n: int, cand: np.ndarray, v: dict) -> None:
