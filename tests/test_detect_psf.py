@@ -12,7 +12,7 @@ import pytest
 from tracker.config import DetectConfig, SimConfig
 from tracker.detect import make_detector
 from tracker.detect.crb import centroid_crb
-from tracker.detect.psf import PsfEstimate, PsfTracker
+from tracker.detect.psf import PsfEstimate, PsfTracker, combine_stars
 from tracker.sim import render_points
 from tracker.sim.psf_shapes import PsfShape, shape_model
 
@@ -120,6 +120,31 @@ def test_the_tracker_averages_agreeing_frames_and_follows_a_change_at_once():
     tracker.update(PsfEstimate(2.12, 0.0, 0.0, 30, 0.03))
     kept = tracker.update(None)
     assert abs(kept.sigma_px - 2.11) < 0.01 and kept.stars == 0
+
+
+def _combined(sigmas):
+    """combine_stars on round spots of these optical sigmas (px), min_stars 5."""
+    sigma = np.asarray(sigmas, float)
+    c = sigma ** 2 + 1.0 / 12.0                      # pixel covariances of round spots
+    return combine_stars(sigma, np.zeros_like(sigma), c, c, np.zeros_like(sigma), 5)
+
+
+def test_particle_hits_outnumbering_the_stars_do_not_set_the_psf():
+    """A particle event's round hits (charge diffused to sigma 0.45-0.55 px, never blurred
+    by the optics) outnumber a lunar frame's few bright stars: the mode of the sigmas is
+    the hits', and the stars, three times wider, measure the PSF (3 agreeing suffice
+    beside such a sharp population). Wider spots that do not agree leave the frame
+    unmeasured rather than measured on the hits; a frame of one PSF is unchanged."""
+    rng = np.random.default_rng(12)
+    hits = rng.uniform(0.45, 0.55, 12)
+    est = _combined(np.concatenate([hits, 1.8 * (1 + 0.03 * rng.standard_normal(4))]))
+    assert est is not None and est.sigma_px == pytest.approx(1.8, rel=0.05)
+    assert est.stars == 4
+    assert _combined(np.concatenate([hits, [1.3, 2.6]])) is None
+    assert _combined(np.concatenate([hits, [1.8, 1.85]])) is None    # two stars: too few
+    one = 0.7 * (1 + 0.04 * rng.standard_normal(30))
+    assert _combined(np.concatenate([one, [0.47, 0.5]])).sigma_px == pytest.approx(
+        _combined(one).sigma_px, rel=0.02)
 
 
 def test_a_frame_of_faint_stars_of_a_wide_psf_is_searched_again_with_it():

@@ -28,7 +28,13 @@ Per frame (:class:`PsfMeter`):
    it), so a minority of cosmic-ray blobs, double stars and bumps on bright
    bodies does not move it; its ellipticity and angle are the median
    tensor of those stars. Fewer than ``min_stars`` agreeing stars give no
-   measurement.
+   measurement. The optics blur every star of a frame alike, and nothing
+   blurs a particle's charge, so where at least two spots are 1.5 times
+   wider than the mode, the mode is a particle event's round hits (on the
+   lunar surface they outnumber the bright stars): the wider spots measure
+   the PSF, and beside such a sharp population 3 agreeing stars (or
+   ``min_stars`` if fewer) suffice; if the wider ones do not agree, the frame
+   has no measurement.
 
 Across frames (:class:`PsfTracker`): the estimate in use is a running
 mean of the measurements that agree with it (within 3 standard errors;
