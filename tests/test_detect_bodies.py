@@ -210,10 +210,11 @@ def test_bright_particle_tracks_narrower_than_a_sharp_psf_are_not_stars():
 def test_saturated_track_pieces_on_glare_are_not_stars_and_saturated_stars_are():
     """The Sun's glare from above the frame and 150 particle tracks: on the glare a track
     piece that reaches full scale has an SNR of 5-10 for the glare's shot noise, below
-    the shape tests' usual floor, and is judged anyway (a pixel at full scale is light
-    enough to show its shape); a saturated spot holding less light than the PSF's area
-    times its clipped peak is sharper than the optics. 6 reports on the glare are left
-    (23 before, for this seed); every star found before is found, 14 of them saturated."""
+    the shape tests' usual floor, and is judged anyway where full scale is 4 sigma of
+    the sky's noise model above the background (light, not noise, reached it); a
+    saturated spot holding less light than the PSF's area times its clipped peak is
+    sharper than the optics. 12 reports on the glare are left (23 before, for this
+    seed); every star found before is found, 14 of them saturated."""
     rng = np.random.default_rng(62)
     shape = (512, 512)
     xs, ys = _grid(5, shape, rng)
@@ -227,7 +228,7 @@ def test_saturated_track_pieces_on_glare_are_not_stars_and_saturated_stars_are()
     star = _nearest(stars["x"], stars["y"], np.rec.fromarrays([xs, ys], names="x,y")) < 1.5
     rows = np.clip(np.rint(stars["y"]).astype(int), 0, shape[0] - 1)
     cols = np.clip(np.rint(stars["x"]).astype(int), 0, shape[1] - 1)
-    assert np.count_nonzero(~star & (scene.light_e[rows, cols] > 200.0)) <= 10
+    assert np.count_nonzero(~star & (scene.light_e[rows, cols] > 200.0)) <= 14
     assert np.count_nonzero(_nearest(xs, ys, stars) < 1.0) >= 15
     assert np.count_nonzero(stars["flags"][star] & StarFlag.SATURATED) >= 14
 

@@ -133,6 +133,7 @@ _NARROW_WIDTH = 0.7            # a spot this narrow (its PSF's = 1), unsaturated
 _NARROW_SNR = 50.0             # ... at this SNR is a particle's charge, not a star
 _SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
 _CLIPPED_AREA = 0.6           # a saturated spot's flux/peak under this x the PSF's is sharp
+_CLIP_SIGMAS = 4.0             # full scale this many pixel noises above the background
 _REMNANT_WIDTH = 0.85          # a spot this narrow and ...
 _REMNANT_ROUGH = 3.0           # ... this rough (x a point source's) is a track's remnant
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
@@ -781,10 +782,15 @@ class DefaultDetector:
             merged = False
         # Shape tests against the PSF, for spots bright enough to measure; under
         # multiplicative noise a star's own pixels are spiky, so none applies.
-        # A spot with a pixel at full scale is judged at any SNR: on glare a faint one's
-        # noise is high, but a star that bright has its shape
+        # A spot with a pixel at full scale far above its background (by the noise of a
+        # smooth sky at that level: light, not noise, reached it) is judged at any SNR: on
+        # glare a faint one's noise is high, but a star that bright has its shape
         saturated = v["raw_peak"] >= self.saturation
-        judged = ((v["snr"] >= self.cfg.sharp_min_snr) | saturated) & (self.speckle_fit is None)
+        level0, var0, slope = self.sky_model    # the noise of a smooth sky at that level
+        bg = np.take(self.bg_pad.ravel(), cand, mode="clip")
+        clipped = saturated & ((self.saturation - bg) ** 2 > _CLIP_SIGMAS ** 2 * (
+            var0 + slope * np.maximum(bg - level0, 0.0)))
+        judged = ((v["snr"] >= self.cfg.sharp_min_snr) | clipped) & (self.speckle_fit is None)
         # Second moment across the spot's narrowest axis: a PSF's is half its size,
         # and a star streaked by motion keeps it, while a cosmic-ray hit or track
         # is a pixel or so wide. Moments of no positive spot (what impulse
@@ -817,7 +823,7 @@ class DefaultDetector:
         # clipping only widens a star (its flux over its clipped peak grows), so a
         # saturated spot holding less light than the PSF's area times its clipped peak
         # is sharper than the optics: a particle's charge
-        track |= saturated & (v["flux"] < _CLIPPED_AREA * 2.0 * math.pi * self.expected_size
+        track |= clipped & (v["flux"] < _CLIPPED_AREA * 2.0 * math.pi * self.expected_size
                               * v["peak"])
         narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
         sharp = judged & (narrow | (rough > self.cfg.rough_ratio))

@@ -79,7 +79,8 @@ _RING_FRACTION = 0.02
 _MAX_ELLIPTICITY = 0.5
 _BIN = math.log(1.10)
 _AGREE = math.log(1.15)
-_OPTICS_GAP = math.log(1.5)  # spots this much wider than the mode (at least two) ...
+_OPTICS_WIDER = 1.5          # spots this much wider than the mode (at least two) ...
+_OPTICS_GAP = math.log(_OPTICS_WIDER)
 _WIDER_STARS = 3             # ... measure the PSF if this many agree (or min_stars)
 
 
@@ -198,6 +199,15 @@ class PsfMeter:
         p["w2"].fill(w_typical ** 2)
         radius = min(self.radius, int(math.ceil(_RING[1] * w_typical * _RING_MARGIN)) + 1)
         view = self._iterate(n, radius, image_pad, bg_pad, cand, p, _ITERATIONS)
+        # where a particle event's sharp hits were the scouts, stars of a wider PSF
+        # outgrow the windows (their isolation rings beyond the edge): the windows are
+        # widened for them, and combine_stars tells the two populations apart
+        w_now = np.sqrt(p["w2"])
+        wide = w_now >= _OPTICS_WIDER * w_typical
+        if np.count_nonzero(wide & (_RING[1] * w_now > radius)) >= 2 and radius < self.radius:
+            w_wide = median(w_now[wide])
+            radius = min(self.radius, int(math.ceil(_RING[1] * w_wide * _RING_MARGIN)) + 1)
+            view = self._iterate(n, radius, image_pad, bg_pad, cand, p, _ITERATIONS)
         sigma, ellipticity, _ = pixel_tensor_to_optics(p["cxx"], p["cyy"], p["cxy"])
         self.last_cand, self.last_n = cand, n
         good = self._isolated(n, radius, view, p, noise[:n], saturation)
