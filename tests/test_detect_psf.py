@@ -147,6 +147,32 @@ def test_particle_hits_outnumbering_the_stars_do_not_set_the_psf():
         _combined(one).sigma_px, rel=0.02)
 
 
+def test_stars_among_brighter_particle_hits_measure_the_psf_and_are_found():
+    """8 stars of sigma 1.8 px among 40 round particle hits (charge diffused to 0.55 px,
+    peaks as high as the stars'): the brightest peaks, which size the PSF meter's
+    windows, are hits, and the stars outgrow those windows; they are measured again in
+    windows wide enough for them, and the PSF is theirs (it was 0.45-0.55 px, and not
+    one star was found)."""
+    rng = np.random.default_rng(50)
+    shape = (500, 500)
+    xs = np.repeat([100.0, 200.0, 300.0, 400.0], 2) + rng.uniform(-20, 20, 8)
+    ys = np.tile([150.0, 350.0], 4) + rng.uniform(-20, 20, 8)
+    deposits = np.zeros(shape)
+    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    hits = rng.uniform([10, 10, 2000], [490, 490, 6000], (60, 3))
+    apart = np.hypot(hits[:, :1] - xs[None, :], hits[:, 1:2] - ys[None, :]).min(axis=1) > 10
+    for x, y, q in hits[apart][:40]:                 # none on a star (it would pull it)
+        box = (slice(int(y) - 3, int(y) + 4), slice(int(x) - 3, int(x) + 4))
+        g = np.exp(-0.5 * ((xx[box] - x) ** 2 + (yy[box] - y) ** 2) / 0.55 ** 2)
+        deposits[box] += q * g / g.sum()
+    frame = render_points(shape, xs, ys, np.full(8, 15000.0), CLEAN, rng,
+                          noise_model="realistic", psf_sigma_px=1.8, deposits=(deposits, []))
+    result = make_detector(CFG, shape, 10).detect(frame.image)
+    assert result.psf_sigma_px == pytest.approx(1.8, rel=0.05)
+    d = np.hypot(xs[:, None] - result.stars["x"][None, :], ys[:, None] - result.stars["y"][None, :])
+    assert np.all(d.min(axis=1) < 1.0)
+
+
 def test_a_frame_of_faint_stars_of_a_wide_psf_is_searched_again_with_it():
     """Too few stars above 10 sigma for the bright-star pass: the candidates found with the
     default 1.2 px measure sigma 2.8, and the frame is searched again with it."""

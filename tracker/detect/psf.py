@@ -34,7 +34,9 @@ Per frame (:class:`PsfMeter`):
    lunar surface they outnumber the bright stars): the wider spots measure
    the PSF, and beside such a sharp population 3 agreeing stars (or
    ``min_stars`` if fewer) suffice; if the wider ones do not agree, the frame
-   has no measurement.
+   has no measurement. (The windows are sized from the brightest dozen, and
+   where those were such hits, candidates that grew 1.5 times wider than
+   them, beyond their windows, are measured again in windows wide enough.)
 
 Across frames (:class:`PsfTracker`): the estimate in use is a running
 mean of the measurements that agree with it (within 3 standard errors;
