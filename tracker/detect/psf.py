@@ -29,14 +29,17 @@ Per frame (:class:`PsfMeter`):
    bodies does not move it; its ellipticity and angle are the median
    tensor of those stars. Fewer than ``min_stars`` agreeing stars give no
    measurement. The optics blur every star of a frame alike, and nothing
-   blurs a particle's charge, so where at least two spots are 1.5 times
-   wider than the mode, the mode is a particle event's round hits (on the
-   lunar surface they outnumber the bright stars): the wider spots measure
-   the PSF, and beside such a sharp population 3 agreeing stars (or
-   ``min_stars`` if fewer) suffice; if the wider ones do not agree, the frame
-   has no measurement. (The windows are sized from the brightest dozen, and
-   where those were such hits, candidates that grew 1.5 times wider than
-   them, beyond their windows, are measured again in windows wide enough.)
+   blurs a particle's charge, which diffuses in the silicon to about the
+   sharpest PSF handled (under 1.5 x 0.45 px). So where the mode is that
+   sharp and at least two spots are 1.5 times wider, the mode is a particle
+   event's round hits (on the lunar surface they outnumber the bright
+   stars): the wider spots measure the PSF, and beside such a sharp
+   population 3 agreeing stars (or ``min_stars`` if fewer) suffice; if the
+   wider ones do not agree, the frame has no measurement. The hits are left
+   out of the estimate's robust spread. (The windows are sized from the
+   brightest dozen, and where those were such hits, candidates that grew
+   1.5 times wider than them, beyond their windows, are measured again in
+   windows wide enough.)
 
 Across frames (:class:`PsfTracker`): the estimate in use is a running
 mean of the measurements that agree with it (within 3 standard errors;
@@ -83,6 +86,11 @@ _BIN = math.log(1.10)
 _AGREE = math.log(1.15)
 _OPTICS_WIDER = 1.5          # spots this much wider than the mode (at least two) ...
 _OPTICS_GAP = math.log(_OPTICS_WIDER)
+# a particle's charge, diffused in the silicon, is at most this wide (optical sigma, px):
+# as sharp as the sharpest PSF handled, give or take the same factor
+_CHARGE_SIGMA_PX = _OPTICS_WIDER * SIGMA_MIN_PX
+# ... and the PSF meter's adaptive weight for it (never under _MIN_WEIGHT_PX)
+_CHARGE_WEIGHT_PX = max(_MIN_WEIGHT_PX, math.sqrt(_CHARGE_SIGMA_PX ** 2 + PIXEL_VARIANCE))
 _WIDER_STARS = 3             # ... measure the PSF if this many agree (or min_stars)
 
 
@@ -206,7 +214,8 @@ class PsfMeter:
         # widened for them, and combine_stars tells the two populations apart
         w_now = np.sqrt(p["w2"])
         wide = w_now >= _OPTICS_WIDER * w_typical
-        if np.count_nonzero(wide & (_RING[1] * w_now > radius)) >= 2 and radius < self.radius:
+        if (w_typical <= _CHARGE_WEIGHT_PX and radius < self.radius
+                and np.count_nonzero(wide & (_RING[1] * w_now > radius)) >= 2):
             w_wide = median(w_now[wide])
             radius = min(self.radius, int(math.ceil(_RING[1] * w_wide * _RING_MARGIN)) + 1)
             view = self._iterate(n, radius, image_pad, bg_pad, cand, p, _ITERATIONS)
@@ -389,7 +398,8 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
     best = _densest(log_s)
     agree = np.abs(log_s - best) <= _AGREE
     wider = log_s > best + _OPTICS_GAP
-    if np.count_nonzero(wider) >= 2:
+    charge = math.log(_CHARGE_SIGMA_PX)
+    if best < charge and np.count_nonzero(wider) >= 2:
         # spots far wider than the mode: the mode is particles' charge, which the optics
         # never blurred, and the frame's stars are the wider spots (or, if they do not
         # agree among themselves, unknown)
@@ -397,9 +407,9 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
         agree = wider & (np.abs(log_s - best) <= _AGREE)
         if np.count_nonzero(agree) < min(min_stars, _WIDER_STARS):
             return None
-    elif np.count_nonzero(agree) < (min(min_stars, _WIDER_STARS)
-                                    if np.count_nonzero(log_s < best - _OPTICS_GAP) >= 2
-                                    else min_stars):
+    elif np.count_nonzero(agree) < (
+            min(min_stars, _WIDER_STARS)
+            if np.count_nonzero(log_s < min(best - _OPTICS_GAP, charge)) >= 2 else min_stars):
         # (beside particles' sharp spots, fewer stars measure the PSF)
         return None
     sel = (median(cxx[agree]), median(cyy[agree]), median(cxy[agree]))
@@ -409,10 +419,12 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
         return None
     # standard error: from the agreeing stars' spread, or, if larger, from all the
     # stars' robust spread (when the mode is picked among noisy values, the stars
-    # near it understate how far it can wander)
+    # near it understate how far it can wander); particles' sharp charge, beside a
+    # wider mode, is not among them
+    stars = sigma[sigma >= _CHARGE_SIGMA_PX] if best >= charge else sigma
     spread = max(float(np.std(sigma[agree])) / math.sqrt(m),
-                 1.4826 * median(np.abs(sigma - median(sigma)))
-                 / math.sqrt(len(sigma)), 0.01 * float(s_opt) / math.sqrt(m))
+                 1.4826 * median(np.abs(stars - median(stars)))
+                 / math.sqrt(len(stars)), 0.01 * float(s_opt) / math.sqrt(m))
     return PsfEstimate(float(np.clip(s_opt, SIGMA_MIN_PX, SIGMA_MAX_PX)), float(e_opt),
                        float(angle), m, 1.25 * spread)
 
