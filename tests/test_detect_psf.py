@@ -12,7 +12,7 @@ import pytest
 from tracker.config import DetectConfig, SimConfig
 from tracker.detect import make_detector
 from tracker.detect.crb import centroid_crb
-from tracker.detect.psf import PsfEstimate, PsfTracker
+from tracker.detect.psf import PsfEstimate, PsfTracker, combine_stars
 from tracker.sim import render_points
 from tracker.sim.psf_shapes import PsfShape, shape_model
 
@@ -120,6 +120,57 @@ def test_the_tracker_averages_agreeing_frames_and_follows_a_change_at_once():
     tracker.update(PsfEstimate(2.12, 0.0, 0.0, 30, 0.03))
     kept = tracker.update(None)
     assert abs(kept.sigma_px - 2.11) < 0.01 and kept.stars == 0
+
+
+def _combined(sigmas):
+    """combine_stars on round spots of these optical sigmas (px), min_stars 5."""
+    sigma = np.asarray(sigmas, float)
+    c = sigma ** 2 + 1.0 / 12.0                      # pixel covariances of round spots
+    return combine_stars(sigma, np.zeros_like(sigma), c, c, np.zeros_like(sigma), 5)
+
+
+def test_particle_hits_outnumbering_the_stars_do_not_set_the_psf():
+    """A particle event's round hits (charge diffused to sigma 0.45-0.55 px, never blurred
+    by the optics) outnumber a lunar frame's few bright stars: the mode of the sigmas is
+    the hits', and the stars, three times wider, measure the PSF (3 agreeing suffice
+    beside such a sharp population). Wider spots that do not agree leave the frame
+    unmeasured rather than measured on the hits; a frame of one PSF is unchanged."""
+    rng = np.random.default_rng(12)
+    hits = rng.uniform(0.45, 0.55, 12)
+    est = _combined(np.concatenate([hits, 1.8 * (1 + 0.03 * rng.standard_normal(4))]))
+    assert est is not None and est.sigma_px == pytest.approx(1.8, rel=0.05)
+    assert est.stars == 4
+    assert _combined(np.concatenate([hits, [1.3, 2.6]])) is None
+    assert _combined(np.concatenate([hits, [1.8, 1.85]])) is None    # two stars: too few
+    one = 0.7 * (1 + 0.04 * rng.standard_normal(30))
+    assert _combined(np.concatenate([one, [0.47, 0.5]])).sigma_px == pytest.approx(
+        _combined(one).sigma_px, rel=0.02)
+
+
+def test_stars_among_brighter_particle_hits_measure_the_psf_and_are_found():
+    """8 stars of sigma 1.8 px among 40 round particle hits (charge diffused to 0.55 px,
+    peaks as high as the stars'): the brightest peaks, which size the PSF meter's
+    windows, are hits, and the stars outgrow those windows; they are measured again in
+    windows wide enough for them, and the PSF is theirs (it was 0.45-0.55 px, and not
+    one star was found)."""
+    rng = np.random.default_rng(50)
+    shape = (500, 500)
+    xs = np.repeat([100.0, 200.0, 300.0, 400.0], 2) + rng.uniform(-20, 20, 8)
+    ys = np.tile([150.0, 350.0], 4) + rng.uniform(-20, 20, 8)
+    deposits = np.zeros(shape)
+    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    hits = rng.uniform([10, 10, 2000], [490, 490, 6000], (60, 3))
+    apart = np.hypot(hits[:, :1] - xs[None, :], hits[:, 1:2] - ys[None, :]).min(axis=1) > 10
+    for x, y, q in hits[apart][:40]:                 # none on a star (it would pull it)
+        box = (slice(int(y) - 3, int(y) + 4), slice(int(x) - 3, int(x) + 4))
+        g = np.exp(-0.5 * ((xx[box] - x) ** 2 + (yy[box] - y) ** 2) / 0.55 ** 2)
+        deposits[box] += q * g / g.sum()
+    frame = render_points(shape, xs, ys, np.full(8, 15000.0), CLEAN, rng,
+                          noise_model="realistic", psf_sigma_px=1.8, deposits=(deposits, []))
+    result = make_detector(CFG, shape, 10).detect(frame.image)
+    assert result.psf_sigma_px == pytest.approx(1.8, rel=0.05)
+    d = np.hypot(xs[:, None] - result.stars["x"][None, :], ys[:, None] - result.stars["y"][None, :])
+    assert np.all(d.min(axis=1) < 1.0)
 
 
 def test_a_frame_of_faint_stars_of_a_wide_psf_is_searched_again_with_it():

@@ -105,6 +105,9 @@ class BackgroundGrid:
         self.spread3 = np.zeros(self.grid_shape, np.float32)  # m2^1.5
         self.star_free = np.zeros(self.grid_shape, np.bool_)
 
+        # each tile row's first frame row, and one past its last
+        self.row_edges = np.searchsorted(_tile_of(rows, ny, 0, rows), np.arange(ny + 1))
+        self.col_tile = _tile_of(cols, nx, 0, cols)      # each frame column's tile
         tile_rows = _tile_of(rows, ny, layout.pad, layout.full_shape[0])
         tile_cols = _tile_of(cols, nx, layout.pad, layout.stride)
         self.tile_index = (tile_rows[:, None] * nx + tile_cols[None, :]).astype(np.int32).ravel()
@@ -220,6 +223,15 @@ class BackgroundGrid:
         """Bilinear interpolation of a grid to the frame (``dst``: interior view)."""
         return cv2.resize(grid, (self.layout.cols, self.layout.rows), dst=dst,
                           interpolation=cv2.INTER_LINEAR)
+
+    def cap_in_tiles(self, grid: np.ndarray, dst: np.ndarray, tiles: np.ndarray) -> None:
+        """Hold an upsampled ``dst`` (interior view) at or under ``grid``'s own value in
+        the tiles marked in ``tiles`` (bool, grid shape): there the interpolation
+        towards a brighter neighbour (a body beyond a sharp edge) is not followed."""
+        for ty in np.flatnonzero(tiles.any(axis=1)):
+            caps = np.where(tiles[ty], grid[ty], np.inf).astype(dst.dtype)[self.col_tile]
+            part = dst[self.row_edges[ty]:self.row_edges[ty + 1]]
+            np.minimum(part, caps, out=part)
 
     def at(self, grid: np.ndarray, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
         """Values of ``grid`` at padded flat indices (nearest tile), into ``out``.

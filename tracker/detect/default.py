@@ -13,6 +13,9 @@ handled, sigma 3.5 px):
    them.
 2. ``background``: per-tile median and low-side noise on a coarse grid,
    3x3-median-filtered and interpolated to full size (tracker.detect.background).
+   Tiles across a body's edge take the sky's statistics from their darker
+   part, and sky tiles beside a saturated one (lit ground, the Earth) keep
+   their own level and threshold rather than a blend with full scale.
 3. ``impulses``: hot pixels, cosmic-ray tracks and salt-and-pepper pixels,
    recognised by being much sharper than the sharpest PSF the detector
    handles (sigma 0.45 px), are replaced by their 3x3 median and counted
@@ -41,7 +44,9 @@ handled, sigma 3.5 px):
    pixels censored; tracker.detect.fit), flux, SNR and shape
    (tracker.detect.windowed). Spots much narrower than the PSF, or rougher
    at the pixel scale than any image of the sky (cosmic-ray clusters that
-   survived steps 3-4), are rejected and counted. With
+   survived steps 3-4), are rejected and counted; so are saturated spots
+   holding less light than the PSF's area times their clipped peak (judged
+   at any SNR: on glare a track's SNR is low, its shape still plain). With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
    every centre instead, from the frame as delivered; the shape tests
@@ -127,6 +132,8 @@ _TRACK_EXCESS = 0.35           # a spot this much more elongated than the frame'
 _NARROW_WIDTH = 0.7            # a spot this narrow (its PSF's = 1), unsaturated, ...
 _NARROW_SNR = 50.0             # ... at this SNR is a particle's charge, not a star
 _SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
+_CLIPPED_AREA = 0.6           # a saturated spot's flux/peak under this x the PSF's is sharp
+_CLIP_SIGMAS = 4.0             # full scale this many pixel noises above the background
 _REMNANT_WIDTH = 0.85          # a spot this narrow and ...
 _REMNANT_ROUGH = 3.0           # ... this rough (x a point source's) is a track's remnant
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
@@ -312,6 +319,7 @@ class DefaultDetector:
         self.tail = NoiseTail(self.grid.index)
         self.textured = np.zeros(grid_shape, np.bool_)
         self.dark_side = np.zeros(grid_shape, np.bool_)
+        self.beside_body = np.zeros(grid_shape, np.bool_)   # sky tiles beside a body's
         self.sky_model = (0.0, 0.0, 0.0)   # the frame's sky noise model (_mark_dark_side)
         self.near_texture = np.zeros(grid_shape, np.bool_)
         self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
@@ -417,6 +425,7 @@ class DefaultDetector:
         np.copyto(self.int_grid, self.float_grid, casting="unsafe")
         grid.upsample(self.int_grid, self.impulse_limit)
         bg_wait()
+        grid.cap_in_tiles(self.level, self.bg, self.beside_body)
         timer.start("impulses")
         self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
                                                self.limit_pad, self.impulse_limit))
@@ -487,6 +496,14 @@ class DefaultDetector:
         sky_noise = np.sqrt(var0 + slope * np.maximum(dark - level0, 0.0))
         np.logical_and(grid.level_raw - dark > _DARK_SIDE_SIGMAS * sky_noise,
                        grid.level_raw < 0.9 * self.saturation, out=self.dark_side)
+        # sky tiles beside a saturated one (lit ground, the Earth) and the dark side of an
+        # edge: their pixels keep the tile's own level and threshold, not a blend with
+        # the saturated level beyond the edge (beside glare's core the tiles are bright
+        # themselves, and its gradient is followed)
+        bright = (grid.level_raw >= _SATURATED_TILE * self.saturation).view(np.uint8)
+        cv2.dilate(bright, _TILE_NEIGHBOURS, dst=self.beside_body.view(np.uint8))
+        self.beside_body &= grid.level_raw - level0 < _DARK_SIDE_SIGMAS * math.sqrt(var0)
+        self.beside_body |= self.dark_side
         return bool(self.dark_side.any())
 
     def psf_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -700,6 +717,7 @@ class DefaultDetector:
         np.add(self.float_grid, self.residual, out=self.float_grid)
         np.add(self.float_grid, self.level, out=self.float_grid)
         self.grid.upsample(self.float_grid, self.threshold)
+        self.grid.cap_in_tiles(self.float_grid, self.threshold, self.beside_body)
         self._raise_edges()
 
     def _centre_plateaus(self, n: int, cand: np.ndarray, v: dict) -> None:
@@ -764,7 +782,15 @@ class DefaultDetector:
             merged = False
         # Shape tests against the PSF, for spots bright enough to measure; under
         # multiplicative noise a star's own pixels are spiky, so none applies.
-        judged = (v["snr"] >= self.cfg.sharp_min_snr) & (self.speckle_fit is None)
+        # A spot with a pixel at full scale far above its background (by the noise of a
+        # smooth sky at that level: light, not noise, reached it) is judged at any SNR: on
+        # glare a faint one's noise is high, but a star that bright has its shape
+        saturated = v["raw_peak"] >= self.saturation
+        level0, var0, slope = self.sky_model    # the noise of a smooth sky at that level
+        bg = np.take(self.bg_pad.ravel(), cand, mode="clip")
+        clipped = saturated & ((self.saturation - bg) ** 2 > _CLIP_SIGMAS ** 2 * (
+            var0 + slope * np.maximum(bg - level0, 0.0)))
+        judged = ((v["snr"] >= self.cfg.sharp_min_snr) | clipped) & (self.speckle_fit is None)
         # Second moment across the spot's narrowest axis: a PSF's is half its size,
         # and a star streaked by motion keeps it, while a cosmic-ray hit or track
         # is a pixel or so wide. Moments of no positive spot (what impulse
@@ -785,7 +811,6 @@ class DefaultDetector:
             # over two pixels is as wide as a sharp PSF), a saturated one the more so (a
             # saturated star's clipped top is as round as its PSF)
             excess = v["ellipticity"] - self.psf.ellipticity
-            saturated = v["raw_peak"] >= self.saturation
             track |= (excess > _TRACK_EXCESS) | (saturated & (excess > _SATURATED_TRACK_EXCESS))
             # a bright spot well narrower than the frame's stars across their narrowest
             # axis (a trailed frame's stars are narrow across the trail): a particle's
@@ -795,6 +820,11 @@ class DefaultDetector:
             narrowest_psf = 1.0 - self.psf.ellipticity
             track |= ((width < _NARROW_WIDTH * narrowest_psf) & (v["snr"] >= _NARROW_SNR)
                       & ~saturated)
+        # clipping only widens a star (its flux over its clipped peak grows), so a
+        # saturated spot holding less light than the PSF's area times its clipped peak
+        # is sharper than the optics: a particle's charge
+        track |= clipped & (v["flux"] < _CLIPPED_AREA * 2.0 * math.pi * self.expected_size
+                              * v["peak"])
         narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
         sharp = judged & (narrow | (rough > self.cfg.rough_ratio))
         n_sharp = int(np.count_nonzero(sharp))

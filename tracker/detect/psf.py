@@ -28,7 +28,18 @@ Per frame (:class:`PsfMeter`):
    it), so a minority of cosmic-ray blobs, double stars and bumps on bright
    bodies does not move it; its ellipticity and angle are the median
    tensor of those stars. Fewer than ``min_stars`` agreeing stars give no
-   measurement.
+   measurement. The optics blur every star of a frame alike, and nothing
+   blurs a particle's charge, which diffuses in the silicon to about the
+   sharpest PSF handled (under 1.5 x 0.45 px). So where the mode is that
+   sharp and at least two spots are 1.5 times wider, the mode is a particle
+   event's round hits (on the lunar surface they outnumber the bright
+   stars): the wider spots measure the PSF, and beside such a sharp
+   population 3 agreeing stars (or ``min_stars`` if fewer) suffice; if the
+   wider ones do not agree, the frame has no measurement. The hits are left
+   out of the estimate's robust spread. (The windows are sized from the
+   brightest dozen, and where those were such hits, candidates that grew
+   1.5 times wider than them, beyond their windows, are measured again in
+   windows wide enough.)
 
 Across frames (:class:`PsfTracker`): the estimate in use is a running
 mean of the measurements that agree with it (within 3 standard errors;
@@ -73,6 +84,14 @@ _RING_FRACTION = 0.02
 _MAX_ELLIPTICITY = 0.5
 _BIN = math.log(1.10)
 _AGREE = math.log(1.15)
+_OPTICS_WIDER = 1.5          # spots this much wider than the mode (at least two) ...
+_OPTICS_GAP = math.log(_OPTICS_WIDER)
+# a particle's charge, diffused in the silicon, is at most this wide (optical sigma, px):
+# as sharp as the sharpest PSF handled, give or take the same factor
+_CHARGE_SIGMA_PX = _OPTICS_WIDER * SIGMA_MIN_PX
+# ... and the PSF meter's adaptive weight for it (never under _MIN_WEIGHT_PX)
+_CHARGE_WEIGHT_PX = max(_MIN_WEIGHT_PX, math.sqrt(_CHARGE_SIGMA_PX ** 2 + PIXEL_VARIANCE))
+_WIDER_STARS = 3             # ... measure the PSF if this many agree (or min_stars)
 
 
 @dataclass(frozen=True)
@@ -190,6 +209,16 @@ class PsfMeter:
         p["w2"].fill(w_typical ** 2)
         radius = min(self.radius, int(math.ceil(_RING[1] * w_typical * _RING_MARGIN)) + 1)
         view = self._iterate(n, radius, image_pad, bg_pad, cand, p, _ITERATIONS)
+        # where a particle event's sharp hits were the scouts, stars of a wider PSF
+        # outgrow the windows (their isolation rings beyond the edge): the windows are
+        # widened for them, and combine_stars tells the two populations apart
+        w_now = np.sqrt(p["w2"])
+        wide = w_now >= _OPTICS_WIDER * w_typical
+        if (w_typical <= _CHARGE_WEIGHT_PX and radius < self.radius
+                and np.count_nonzero(wide & (_RING[1] * w_now > radius)) >= 2):
+            w_wide = median(w_now[wide])
+            radius = min(self.radius, int(math.ceil(_RING[1] * w_wide * _RING_MARGIN)) + 1)
+            view = self._iterate(n, radius, image_pad, bg_pad, cand, p, _ITERATIONS)
         sigma, ellipticity, _ = pixel_tensor_to_optics(p["cxx"], p["cyy"], p["cxy"])
         self.last_cand, self.last_n = cand, n
         good = self._isolated(n, radius, view, p, noise[:n], saturation)
@@ -348,6 +377,15 @@ def _deconvolve_weight(p: dict) -> None:
         np.copyto(p[key], np.nan, where=bad)
 
 
+def _densest(log_s: np.ndarray) -> float:
+    """Centre of the densest bin of width _BIN of ``log_s`` (sliding in steps of a
+    quarter bin; ties: the last)."""
+    starts = np.arange(log_s.min() - _BIN, log_s.max() + _BIN / 4, _BIN / 4)
+    counts = np.count_nonzero((log_s[None, :] >= starts[:, None])
+                              & (log_s[None, :] < starts[:, None] + _BIN), axis=1)
+    return float(starts[len(starts) - 1 - np.argmax(counts[::-1])] + _BIN / 2)
+
+
 def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstimate | None:
     """The mode of the stars' sigmas and the median tensor of the stars near it.
 
@@ -357,13 +395,22 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
     if len(sigma) < min_stars:
         return None
     log_s = np.log(sigma)
-    # densest bin of width _BIN, sliding in steps of a quarter bin
-    starts = np.arange(log_s.min() - _BIN, log_s.max() + _BIN / 4, _BIN / 4)
-    counts = np.count_nonzero((log_s[None, :] >= starts[:, None])
-                              & (log_s[None, :] < starts[:, None] + _BIN), axis=1)
-    best = starts[len(starts) - 1 - np.argmax(counts[::-1])] + _BIN / 2  # ties: the last
+    best = _densest(log_s)
     agree = np.abs(log_s - best) <= _AGREE
-    if np.count_nonzero(agree) < min_stars:
+    wider = log_s > best + _OPTICS_GAP
+    charge = math.log(_CHARGE_SIGMA_PX)
+    if best < charge and np.count_nonzero(wider) >= 2:
+        # spots far wider than the mode: the mode is particles' charge, which the optics
+        # never blurred, and the frame's stars are the wider spots (or, if they do not
+        # agree among themselves, unknown)
+        best = _densest(log_s[wider])
+        agree = wider & (np.abs(log_s - best) <= _AGREE)
+        if np.count_nonzero(agree) < min(min_stars, _WIDER_STARS):
+            return None
+    elif np.count_nonzero(agree) < (
+            min(min_stars, _WIDER_STARS)
+            if np.count_nonzero(log_s < min(best - _OPTICS_GAP, charge)) >= 2 else min_stars):
+        # (beside particles' sharp spots, fewer stars measure the PSF)
         return None
     sel = (median(cxx[agree]), median(cyy[agree]), median(cxy[agree]))
     s_opt, e_opt, angle = pixel_tensor_to_optics(*sel)
@@ -372,10 +419,12 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
         return None
     # standard error: from the agreeing stars' spread, or, if larger, from all the
     # stars' robust spread (when the mode is picked among noisy values, the stars
-    # near it understate how far it can wander)
+    # near it understate how far it can wander); particles' sharp charge, beside a
+    # wider mode, is not among them
+    stars = sigma[sigma >= _CHARGE_SIGMA_PX] if best >= charge else sigma
     spread = max(float(np.std(sigma[agree])) / math.sqrt(m),
-                 1.4826 * median(np.abs(sigma - median(sigma)))
-                 / math.sqrt(len(sigma)), 0.01 * float(s_opt) / math.sqrt(m))
+                 1.4826 * median(np.abs(stars - median(stars)))
+                 / math.sqrt(len(stars)), 0.01 * float(s_opt) / math.sqrt(m))
     return PsfEstimate(float(np.clip(s_opt, SIGMA_MIN_PX, SIGMA_MAX_PX)), float(e_opt),
                        float(angle), m, 1.25 * spread)
 
