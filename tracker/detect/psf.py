@@ -23,12 +23,12 @@ Per frame (:class:`PsfMeter`):
    peak, beyond three standard errors of that mean, so no neighbour, edge
    of a bright body or glare slope pulls its moments) and round enough
    (ellipticity < 0.5; cosmic-ray tracks are not);
-4. the frame's sigma is the mode of the kept stars' sigmas (the densest
-   10 %-wide bin of log sigma, then the median of the stars within 15 % of
-   it), so a minority of cosmic-ray blobs, double stars and bumps on bright
-   bodies does not move it; its ellipticity and angle are the median
-   tensor of those stars. Fewer than ``min_stars`` agreeing stars give no
-   measurement.
+4. the frame's sigma is the mode of the kept stars' sigmas (the median of
+   the stars in the densest 10 %-wide bin of log sigma, then the median of
+   the stars within 15 % of that), so a minority of cosmic-ray blobs,
+   double stars and bumps on bright bodies does not move it; its
+   ellipticity and angle are the median tensor of those stars. Fewer than
+   ``min_stars`` agreeing stars give no measurement.
 
 Across frames (:class:`PsfTracker`): the estimate in use is a running
 mean of the measurements that agree with it (within 3 standard errors;
@@ -361,7 +361,10 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
     starts = np.arange(log_s.min() - _BIN, log_s.max() + _BIN / 4, _BIN / 4)
     counts = np.count_nonzero((log_s[None, :] >= starts[:, None])
                               & (log_s[None, :] < starts[:, None] + _BIN), axis=1)
-    best = starts[len(starts) - 1 - np.argmax(counts[::-1])] + _BIN / 2  # ties: the last
+    start = starts[len(starts) - 1 - np.argmax(counts[::-1])]  # ties: the last
+    # the mode: the median of the densest bin's stars (the bin's own centre is up to
+    # half a bin from them, and then leaves out a star at the cluster's far edge)
+    best = median(log_s[(log_s >= start) & (log_s < start + _BIN)])
     agree = np.abs(log_s - best) <= _AGREE
     if np.count_nonzero(agree) < min_stars:
         return None
