@@ -94,7 +94,7 @@ from tracker.detect.psf import (
 )
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.sigma_steps import SigmaSteps
-from tracker.detect.significance import SHOT_ADU, shot_noise_snr
+from tracker.detect.significance import shot_noise_snr
 from tracker.detect.slabs import SlabRunner
 from tracker.detect.stars import StarTable
 from tracker.detect.surroundings import Surroundings, sky_noise_model
@@ -764,10 +764,9 @@ class DefaultDetector:
         else:
             merged = False
         # Shape tests against the PSF, for spots whose shape is known (their SNR with
-        # their own shot noise, tracker.detect.significance: ADU^2 per ADU of light from
-        # the sky's own variance against its level where the sky has levels to compare);
-        # under multiplicative noise a star's own pixels are spiky, so none applies.
-        known = shot_noise_snr(v["weighted"], v["snr"], self.sky_model[2] or SHOT_ADU)
+        # their own shot noise, tracker.detect.significance); under multiplicative
+        # noise a star's own pixels are spiky, so none applies.
+        known = shot_noise_snr(v["weighted"], v["snr"])
         judged = (known >= self.cfg.sharp_min_snr) & (self.speckle_fit is None)
         # Second moment across the spot's narrowest axis: a PSF's is half its size,
         # and a star streaked by motion keeps it, while a cosmic-ray hit or track

@@ -11,10 +11,12 @@ SNR reads 70 is measured as if at SNR 9 (its width to about a third, not
 to a few per cent).
 
 With each pixel's variance noise^2 + g S (g: ADU^2 of shot noise per ADU of
-light, the reciprocal of the gain in e-/ADU: the detector takes it from the
-sky's variance against its level across the frame's tiles,
-tracker.detect.surroundings.sky_noise_model, and where the sky has no range
-of levels to compare, 1, the convention tracker.detect.fit weights with),
+light, the reciprocal of the gain in e-/ADU; the detector takes 1, the
+convention tracker.detect.fit weights with: the OV2311's 1.35 e-/ADU at
+10 bits gives 0.74, photon-counting 8-bit frames 1. The sky's variance
+against its level across the frame's tiles gave the same detections on the
+bench, but a mosaic of windows around stars or lit ground would make that
+slope from light that is not sky),
 the weighted sum's variance is noise^2 sum(W^2) + g sum(W^2 S). For a star
 whose width the window's Gaussian weight W matches (the centroider's),
 S = F/(2 pi s^2) exp(-r^2/(2 s^2)) and W = exp(-r^2/(2 s^2)), so
