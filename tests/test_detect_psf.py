@@ -214,3 +214,21 @@ def test_the_replay_record_carries_the_psf_and_what_was_left_out():
     assert len(record["stars"]) == 40
     assert record["rejected"]["left_out"] == uncapped.count - 40
     assert record["detect_reason"] == "too_many"
+
+
+def _combined(sigmas, min_stars=5):
+    s = np.asarray(sigmas, np.float64)
+    c = s * s + 1.0 / 12.0        # round stars' pixel covariances
+    return combine_stars(s, np.zeros_like(s), c, c, np.zeros_like(s), min_stars)
+
+
+def test_psf_mode_takes_a_cluster_whose_scatter_fills_the_agreement_window():
+    """Six faint stars of a wide PSF (sigma 3 px) measured with 8 % scatter: five lie
+    within 15 % of their cluster's median, so they agree (a mode placed at the densest
+    bin's own centre, half a bin up, left the lowest of them out and the frame with
+    no PSF); a minority of narrow blobs moves nothing."""
+    est = _combined([2.42, 2.54, 2.84, 2.87, 2.9, 3.06])
+    assert est is not None and est.stars == 5 and abs(est.sigma_px - 2.86) < 0.05
+    est = _combined([1.45, 1.5, 1.52, 1.55, 1.6, 0.6, 0.62, 0.65])
+    assert est is not None and est.stars == 5 and abs(est.sigma_px - 1.52) < 0.02
+    assert _combined([2.0, 2.3, 2.7, 3.1, 3.6]) is None     # no five agree

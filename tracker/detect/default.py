@@ -99,6 +99,7 @@ from tracker.detect.psf import (
 )
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.sigma_steps import SigmaSteps
+from tracker.detect.significance import shot_noise_snr
 from tracker.detect.slabs import SlabRunner
 from tracker.detect.stars import StarTable
 from tracker.detect.surroundings import Surroundings, sky_noise_model
@@ -780,8 +781,9 @@ class DefaultDetector:
                 2.0 * self.sigma)
         else:
             merged = False
-        # Shape tests against the PSF, for spots bright enough to measure; under
-        # multiplicative noise a star's own pixels are spiky, so none applies.
+        # Shape tests against the PSF, for spots whose shape is known (their SNR with
+        # their own shot noise, tracker.detect.significance); under multiplicative
+        # noise a star's own pixels are spiky, so none applies.
         # A spot with a pixel at full scale far above its background (by the noise of a
         # smooth sky at that level: light, not noise, reached it) is judged at any SNR: on
         # glare a faint one's noise is high, but a star that bright has its shape
@@ -790,7 +792,8 @@ class DefaultDetector:
         bg = np.take(self.bg_pad.ravel(), cand, mode="clip")
         clipped = saturated & ((self.saturation - bg) ** 2 > _CLIP_SIGMAS ** 2 * (
             var0 + slope * np.maximum(bg - level0, 0.0)))
-        judged = ((v["snr"] >= self.cfg.sharp_min_snr) | clipped) & (self.speckle_fit is None)
+        known = shot_noise_snr(v["weighted"], v["snr"])
+        judged = ((known >= self.cfg.sharp_min_snr) | clipped) & (self.speckle_fit is None)
         # Second moment across the spot's narrowest axis: a PSF's is half its size,
         # and a star streaked by motion keeps it, while a cosmic-ray hit or track
         # is a pixel or so wide. Moments of no positive spot (what impulse

@@ -23,23 +23,23 @@ Per frame (:class:`PsfMeter`):
    peak, beyond three standard errors of that mean, so no neighbour, edge
    of a bright body or glare slope pulls its moments) and round enough
    (ellipticity < 0.5; cosmic-ray tracks are not);
-4. the frame's sigma is the mode of the kept stars' sigmas (the densest
-   10 %-wide bin of log sigma, then the median of the stars within 15 % of
-   it), so a minority of cosmic-ray blobs, double stars and bumps on bright
-   bodies does not move it; its ellipticity and angle are the median
-   tensor of those stars. Fewer than ``min_stars`` agreeing stars give no
-   measurement. The optics blur every star of a frame alike, and nothing
-   blurs a particle's charge, which diffuses in the silicon to about the
-   sharpest PSF handled (under 1.5 x 0.45 px). So where the mode is that
-   sharp and at least two spots are 1.5 times wider, the mode is a particle
-   event's round hits (on the lunar surface they outnumber the bright
-   stars): the wider spots measure the PSF, and beside such a sharp
-   population 3 agreeing stars (or ``min_stars`` if fewer) suffice; if the
-   wider ones do not agree, the frame has no measurement. The hits are left
-   out of the estimate's robust spread. (The windows are sized from the
-   brightest dozen, and where those were such hits, candidates that grew
-   1.5 times wider than them, beyond their windows, are measured again in
-   windows wide enough.)
+4. the frame's sigma is the mode of the kept stars' sigmas (the median of
+   the stars in the densest 10 %-wide bin of log sigma, then the median of
+   the stars within 15 % of that), so a minority of cosmic-ray blobs,
+   double stars and bumps on bright bodies does not move it; its
+   ellipticity and angle are the median tensor of those stars. Fewer than
+   ``min_stars`` agreeing stars give no measurement. The optics blur every
+   star of a frame alike, and nothing blurs a particle's charge, which
+   diffuses in the silicon to about the sharpest PSF handled (under 1.5 x
+   0.45 px). So where the mode is that sharp and at least two spots are 1.5
+   times wider, the mode is a particle event's round hits (on the lunar
+   surface they outnumber the bright stars): the wider spots measure the
+   PSF, and beside such a sharp population 3 agreeing stars (or
+   ``min_stars`` if fewer) suffice; if the wider ones do not agree, the
+   frame has no measurement. The hits are left out of the estimate's robust
+   spread. (The windows are sized from the brightest dozen, and where those
+   were such hits, candidates that grew 1.5 times wider than them, beyond
+   their windows, are measured again in windows wide enough.)
 
 Across frames (:class:`PsfTracker`): the estimate in use is a running
 mean of the measurements that agree with it (within 3 standard errors;
@@ -378,12 +378,14 @@ def _deconvolve_weight(p: dict) -> None:
 
 
 def _densest(log_s: np.ndarray) -> float:
-    """Centre of the densest bin of width _BIN of ``log_s`` (sliding in steps of a
-    quarter bin; ties: the last)."""
+    """The mode of ``log_s``: the median of the values in its densest bin of width _BIN
+    (sliding in steps of a quarter bin; ties: the last). The bin's own centre is up to
+    half a bin from its values, and then leaves out a star at the cluster's far edge."""
     starts = np.arange(log_s.min() - _BIN, log_s.max() + _BIN / 4, _BIN / 4)
     counts = np.count_nonzero((log_s[None, :] >= starts[:, None])
                               & (log_s[None, :] < starts[:, None] + _BIN), axis=1)
-    return float(starts[len(starts) - 1 - np.argmax(counts[::-1])] + _BIN / 2)
+    start = starts[len(starts) - 1 - np.argmax(counts[::-1])]
+    return float(median(log_s[(log_s >= start) & (log_s < start + _BIN)]))
 
 
 def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstimate | None:
