@@ -10,6 +10,13 @@ top few per cent, and dark impulses, in the bottom few, drop out):
 * noise = mean |value - level| over the middle half / 0.3247, the ratio of
   that mean to sigma for a Gaussian (2 (phi(0) - phi(0.6745)) / 0.5).
 
+Integer frames are read on a lattice: a middle half or a percentile of
+integers is stuck to whole ADU (rounded Gaussian noise of 0.7 ADU reads
+1.26). Their spread is measured on the samples' histogram instead, each run
+of equal integers spread evenly over its unit bin, and the 1/12 ADU^2 that
+this spreading adds is taken off: what remains is the integers' own noise,
+rounding included (the rounding is noise the filters see too).
+
 Both grids then pass a 3x3 median (a tile swamped by a bright star or a
 cluster takes its neighbours' value), and noise is floored at ``floor``.
 :meth:`BackgroundGrid.upsample` interpolates a grid bilinearly to the full
@@ -91,10 +98,18 @@ class BackgroundGrid:
         self.minus_samples = np.zeros(self.index.shape, np.float32)
         self.int_samples = np.zeros(self.index.shape, np.uint16)  # reads of uint16 frames
         self.middle = self.samples[..., m // 4: m - m // 4]
+        # _spread_over_bins: each sample's rank, m - 1 - rank, runs of equal integers
+        self.ranks = np.arange(m, dtype=np.float32)
+        self.ranks_left = self.ranks[::-1].copy()
+        self.run_edge = np.ones(self.index.shape, np.bool_)
+        self.run_start = np.zeros(self.index.shape, np.float32)
+        self.run_end = np.zeros(self.index.shape, np.float32)
         self.deviation = np.zeros(self.middle.shape, np.float32)
         self.raw = np.zeros(self.grid_shape, np.float32)
         self.level_raw = np.zeros(self.grid_shape, np.float32)
         self.upper = np.zeros(self.grid_shape, np.float32)
+        self.trimmed = np.zeros(self.grid_shape, np.float32)
+        self.smoothed = np.zeros(self.grid_shape, np.float32)
         self._upper = int(round(_ONE_SIGMA_ABOVE * (m - 1)))
         self._trim = max(1, int(round(_TRIM_FRACTION * m)))
         self._trimmed_std = _truncated_normal_std(self._trim / m)
@@ -137,11 +152,12 @@ class BackgroundGrid:
         all three agree.
         """
         m = self.samples.shape[-1]
-        if padded.dtype == self.int_samples.dtype and not minus:
+        lattice = padded.dtype == self.int_samples.dtype and not minus
+        if lattice:
             # sorted as integers (twice as fast), the same order of the same values
             np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
             self.int_samples.sort(axis=-1)
-            np.copyto(self.samples, self.int_samples)
+            self._spread_over_bins()
         else:
             if padded.dtype == self.int_samples.dtype:
                 np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
@@ -151,32 +167,89 @@ class BackgroundGrid:
             if minus:
                 np.subtract(self.samples, self.minus_samples, out=self.samples)
             self.samples.sort(axis=-1)
-        _mean(self.middle, self.level_raw)
+        # the level from the samples as read: the interquartile mean of integers
+        # (spread over their bins, a tile of zeros with a few ones would read 0.02)
+        values = self.int_samples if lattice else self.samples
+        np.add.reduce(values[..., m // 4: m - m // 4], axis=-1, dtype=np.float32,
+                      out=self.level_raw)
+        np.true_divide(self.level_raw, m - 2 * (m // 4), out=self.level_raw)
         if dark_side is not None and np.any(dark_side):
-            dark = self.samples[dark_side]
+            dark = values[dark_side]
             self.level_raw[dark_side] = dark[:, m // 16: 3 * m // 8].mean(axis=-1)
         self._smooth(self.level_raw, level)
         np.subtract(self.middle, self.level_raw[..., None], out=self.deviation)
         np.abs(self.deviation, out=self.deviation)
         _mean(self.deviation, self.raw)
         np.multiply(self.raw, 1.0 / _MEAN_ABS_IN_IQR, out=self.raw)
+        estimates = [self.raw]
         if upper:
             np.subtract(self.samples[..., self._upper], self.level_raw, out=self.upper)
-            np.maximum(self.raw, self.upper, out=self.raw)
             trimmed = self.samples[..., self._trim:m - self._trim]
-            _mean(trimmed, self.upper)
-            np.subtract(trimmed, self.upper[..., None], out=self.trim_dev)
+            _mean(trimmed, self.moment2)
+            np.subtract(trimmed, self.moment2[..., None], out=self.trim_dev)
             np.multiply(self.trim_dev, self.trim_dev, out=self.trim_pow)
             _mean(self.trim_pow, self.moment2)
             np.multiply(self.trim_pow, self.trim_dev, out=self.trim_pow)
             _mean(self.trim_pow, self.moment3)  # for skewness()
-            np.sqrt(self.moment2, out=self.upper)
-            np.multiply(self.upper, 1.0 / self._trimmed_std, out=self.upper)
-            np.maximum(self.raw, self.upper, out=self.raw)
+            if lattice:
+                np.subtract(self.moment2, 1.0 / 12.0, out=self.moment2)
+                np.maximum(self.moment2, 0.0, out=self.moment2)
+            np.sqrt(self.moment2, out=self.trimmed)
+            np.multiply(self.trimmed, 1.0 / self._trimmed_std, out=self.trimmed)
+            estimates += [self.upper, self.trimmed]
         if dark_side is not None and np.any(dark_side):
-            self._dark_side(dark_side)
-        np.maximum(self.raw, floor, out=self.raw)
+            spread = self._dark_side(dark_side)
+            for estimate in estimates:
+                estimate[dark_side] = spread
+        if lattice:
+            # the spread samples are the integers plus an independent uniform of
+            # variance 1/12: the integers' own spread is what remains (the trimmed
+            # variance has had it taken off already)
+            for estimate in estimates[:2]:
+                np.multiply(estimate, estimate, out=estimate)
+                np.subtract(estimate, 1.0 / 12.0, out=estimate)
+                np.maximum(estimate, 0.0, out=estimate)
+                np.sqrt(estimate, out=estimate)
+        # each estimate smoothed on its own, then the largest: the largest of
+        # three noisy estimates of one tile would be biased upwards (6 % for
+        # Gaussian noise), that of their 3x3 medians much less
+
         self._smooth(self.raw, noise)
+        for estimate in estimates[1:]:
+            np.maximum(self.raw, estimate, out=self.raw)   # per tile, for skewness()
+            self._smooth(estimate, self.smoothed)
+            np.maximum(noise, self.smoothed, out=noise)
+        np.maximum(noise, floor, out=noise)
+
+    def _spread_over_bins(self) -> None:
+        """``samples`` from the sorted ``int_samples``, each run of n equal integers v
+        spread evenly over its unit bin: the j-th (from 0) takes v - 1/2 + (j + 1/2) / n,
+        the quantile of the samples' histogram at its rank.
+
+        A middle-half or percentile spread of integers is stuck to the lattice
+        (Gaussian noise of 0.7 ADU, rounded, reads 1.26 ADU from the middle half,
+        whose integers are never less than a step apart); the histogram's
+        quantiles are not: they are those of the integers plus an independent
+        uniform on (-1/2, 1/2), variance 1/12, which :meth:`stats` takes off.
+        """
+        s = self.int_samples
+        edge, start, end = self.run_edge, self.run_start, self.run_end
+        np.not_equal(s[..., 1:], s[..., :-1], out=edge[..., 1:])   # edge[..., 0] stays True
+        np.multiply(edge, self.ranks, out=start)                   # a run's first rank ...
+        np.maximum.accumulate(start, axis=-1, out=start)           # ... for all its samples
+        # one past a run's last rank: m - (m - 1 - rank) where the next sample differs
+        m = s.shape[-1]
+        np.multiply(edge[..., 1:], self.ranks_left[:-1], out=end[..., :-1])
+        np.subtract(m, end[..., :-1], out=end[..., :-1])
+        end[..., -1] = m
+        np.minimum.accumulate(end[..., ::-1], axis=-1, out=end[..., ::-1])
+        np.subtract(end, start, out=end)                           # the run's length n
+        np.subtract(self.ranks, start, out=start)                  # j
+        np.add(start, 0.5, out=start)
+        np.divide(start, end, out=start)
+        np.copyto(self.samples, s)
+        np.subtract(self.samples, 0.5, out=self.samples)
+        np.add(self.samples, start, out=self.samples)
 
     def sample_minus(self, minus: np.ndarray) -> None:
         """Read ``minus`` (float32, padded like the frames) at the sampled pixels, for
@@ -184,12 +257,12 @@ class BackgroundGrid:
         image fixed for a frame, which a worker thread can make ahead)."""
         np.take(minus.ravel(), self.index, out=self.minus_samples, mode="clip")
 
-    def _dark_side(self, dark_side: np.ndarray) -> None:
+    def _dark_side(self, dark_side: np.ndarray) -> np.ndarray:
         """Noise of the marked tiles from their 10th-30th percentile samples."""
         m = self.samples.shape[-1]
         dark = self.samples[dark_side]
         spread = dark[:, int(round(0.3 * (m - 1)))] - dark[:, int(round(0.1 * (m - 1)))]
-        self.raw[dark_side] = spread / _DECILES_10_30
+        return spread / _DECILES_10_30
 
     def skewness(self, star_free_sigma: float = 5.0, min_fraction: float = 0.5) -> float:
         """Median skewness of the star-free tiles of the last :meth:`stats` call (``upper``).
