@@ -12,10 +12,11 @@ top few per cent, and dark impulses, in the bottom few, drop out):
 
 Integer frames are read on a lattice: a middle half or a percentile of
 integers is stuck to whole ADU (rounded Gaussian noise of 0.7 ADU reads
-1.26). Their spread is measured on the samples' histogram instead, each run
-of equal integers spread evenly over its unit bin, and the 1/12 ADU^2 that
-this spreading adds is taken off: what remains is the integers' own noise,
-rounding included (the rounding is noise the filters see too).
+1.26). Their spread is measured on the samples plus a fixed uniform dither
+on (-1/2, 1/2), which spreads each over its unit bin (the samples' histogram,
+not its lattice), and the 1/12 ADU^2 the independent dither adds is taken
+off: what remains is the integers' own noise, rounding included (rounding
+is noise the filters see too). The level stays the integers' own.
 
 Both grids then pass a 3x3 median (a tile swamped by a bright star or a
 cluster takes its neighbours' value), and noise is floored at ``floor``.
@@ -42,6 +43,7 @@ _MEAN_ABS_IN_IQR = 0.3247  # E|z| for a standard normal z restricted to its midd
 _ONE_SIGMA_ABOVE = 0.84134  # fraction of a Gaussian below mean + sigma
 _TRIM_FRACTION = 1.0 / 16.0  # trimmed noise: drop this fraction of samples at each end
 _DECILES_10_30 = 0.7573   # distance from a Gaussian's 10th to its 30th percentile, in sigma
+_DITHER_SEED = 12         # of the fixed dither of integer samples (any seed will do)
 
 
 def _truncated_normal_std(p: float) -> float:
@@ -98,12 +100,13 @@ class BackgroundGrid:
         self.minus_samples = np.zeros(self.index.shape, np.float32)
         self.int_samples = np.zeros(self.index.shape, np.uint16)  # reads of uint16 frames
         self.middle = self.samples[..., m // 4: m - m // 4]
-        # _spread_over_bins: each sample's rank, m - 1 - rank, runs of equal integers
-        self.ranks = np.arange(m, dtype=np.float32)
-        self.ranks_left = self.ranks[::-1].copy()
-        self.run_edge = np.ones(self.index.shape, np.bool_)
-        self.run_start = np.zeros(self.index.shape, np.float32)
-        self.run_end = np.zeros(self.index.shape, np.float32)
+        # integer frames: a fixed uniform dither on (-1/2, 1/2) spreads each sample over
+        # its unit bin (the same every frame: the same frame gives the same statistics);
+        # stratified: each tile's m values are (k + 1/2) / m - 1/2 in a shuffled order
+        even = ((np.arange(m) + 0.5) / m - 0.5).astype(np.float32)
+        self.dither = np.random.default_rng(_DITHER_SEED).permuted(
+            np.broadcast_to(even, self.index.shape), axis=-1)
+        self.rounded = np.zeros(self.index.shape, np.float32)
         self.deviation = np.zeros(self.middle.shape, np.float32)
         self.raw = np.zeros(self.grid_shape, np.float32)
         self.level_raw = np.zeros(self.grid_shape, np.float32)
@@ -153,26 +156,25 @@ class BackgroundGrid:
         """
         m = self.samples.shape[-1]
         lattice = padded.dtype == self.int_samples.dtype and not minus
-        if lattice:
-            # sorted as integers (twice as fast), the same order of the same values
+        if padded.dtype == self.int_samples.dtype:
             np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
-            self.int_samples.sort(axis=-1)
-            self._spread_over_bins()
+            np.copyto(self.samples, self.int_samples)
         else:
-            if padded.dtype == self.int_samples.dtype:
-                np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
-                np.copyto(self.samples, self.int_samples)
-            else:
-                np.take(padded.ravel(), self.index, out=self.samples, mode="clip")
-            if minus:
-                np.subtract(self.samples, self.minus_samples, out=self.samples)
-            self.samples.sort(axis=-1)
-        # the level from the samples as read: the interquartile mean of integers
-        # (spread over their bins, a tile of zeros with a few ones would read 0.02)
-        values = self.int_samples if lattice else self.samples
-        np.add.reduce(values[..., m // 4: m - m // 4], axis=-1, dtype=np.float32,
-                      out=self.level_raw)
-        np.true_divide(self.level_raw, m - 2 * (m // 4), out=self.level_raw)
+            np.take(padded.ravel(), self.index, out=self.samples, mode="clip")
+        if minus:
+            np.subtract(self.samples, self.minus_samples, out=self.samples)
+        if lattice:
+            np.add(self.samples, self.dither, out=self.samples)
+        self.samples.sort(axis=-1)
+        if lattice:
+            # the level from the integers as read (in the same order: the dither is
+            # under half a step), not the histogram's (a tile of zeros with a few
+            # ones would read 0.02)
+            np.rint(self.samples, out=self.rounded)
+            values = self.rounded
+        else:
+            values = self.samples
+        _mean(values[..., m // 4: m - m // 4], self.level_raw)
         if dark_side is not None and np.any(dark_side):
             dark = values[dark_side]
             self.level_raw[dark_side] = dark[:, m // 16: 3 * m // 8].mean(axis=-1)
@@ -202,7 +204,7 @@ class BackgroundGrid:
             for estimate in estimates:
                 estimate[dark_side] = spread
         if lattice:
-            # the spread samples are the integers plus an independent uniform of
+            # the dithered samples are the integers plus an independent uniform of
             # variance 1/12: the integers' own spread is what remains (the trimmed
             # variance has had it taken off already)
             for estimate in estimates[:2]:
@@ -220,36 +222,6 @@ class BackgroundGrid:
             self._smooth(estimate, self.smoothed)
             np.maximum(noise, self.smoothed, out=noise)
         np.maximum(noise, floor, out=noise)
-
-    def _spread_over_bins(self) -> None:
-        """``samples`` from the sorted ``int_samples``, each run of n equal integers v
-        spread evenly over its unit bin: the j-th (from 0) takes v - 1/2 + (j + 1/2) / n,
-        the quantile of the samples' histogram at its rank.
-
-        A middle-half or percentile spread of integers is stuck to the lattice
-        (Gaussian noise of 0.7 ADU, rounded, reads 1.26 ADU from the middle half,
-        whose integers are never less than a step apart); the histogram's
-        quantiles are not: they are those of the integers plus an independent
-        uniform on (-1/2, 1/2), variance 1/12, which :meth:`stats` takes off.
-        """
-        s = self.int_samples
-        edge, start, end = self.run_edge, self.run_start, self.run_end
-        np.not_equal(s[..., 1:], s[..., :-1], out=edge[..., 1:])   # edge[..., 0] stays True
-        np.multiply(edge, self.ranks, out=start)                   # a run's first rank ...
-        np.maximum.accumulate(start, axis=-1, out=start)           # ... for all its samples
-        # one past a run's last rank: m - (m - 1 - rank) where the next sample differs
-        m = s.shape[-1]
-        np.multiply(edge[..., 1:], self.ranks_left[:-1], out=end[..., :-1])
-        np.subtract(m, end[..., :-1], out=end[..., :-1])
-        end[..., -1] = m
-        np.minimum.accumulate(end[..., ::-1], axis=-1, out=end[..., ::-1])
-        np.subtract(end, start, out=end)                           # the run's length n
-        np.subtract(self.ranks, start, out=start)                  # j
-        np.add(start, 0.5, out=start)
-        np.divide(start, end, out=start)
-        np.copyto(self.samples, s)
-        np.subtract(self.samples, 0.5, out=self.samples)
-        np.add(self.samples, start, out=self.samples)
 
     def sample_minus(self, minus: np.ndarray) -> None:
         """Read ``minus`` (float32, padded like the frames) at the sampled pixels, for
