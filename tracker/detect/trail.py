@@ -36,20 +36,22 @@ import numpy as np
 __all__ = ["TrailFit", "normal_cdf", "MIN_TRAIL_SIGMAS"]
 
 MIN_TRAIL_SIGMAS = 2.5
-_FAR = 1e6      # px: a padded pixel's position, where every model term is exactly zero
+_FAR = 1e6      # sigma: a padded pixel's place along the trail, where the model is exactly zero
+_ALONG = -math.sqrt(math.pi / 2.0)   # the along column's scale: dg / dda = that column / _ALONG
 
 
 def normal_cdf(z: np.ndarray) -> np.ndarray:
     """Phi(z), the standard normal CDF, to 1.5e-7 (Abramowitz and Stegun 7.1.26 for erf)."""
-    return _cdf(z, np.exp(-0.5 * z * z))
+    return 0.5 + 0.5 * _signed_erf(z, np.exp(-0.5 * z * z))
 
 
-def _cdf(z: np.ndarray, gauss: np.ndarray) -> np.ndarray:
-    """Phi(z) given ``gauss`` = exp(-z^2 / 2) (the line-spread model has it already)."""
+def _signed_erf(z: np.ndarray, gauss: np.ndarray) -> np.ndarray:
+    """2 Phi(z) - 1 = erf(z / sqrt 2), given ``gauss`` = exp(-z^2 / 2) (the line-spread
+    model has it already)."""
     t = 1.0 / (1.0 + (0.3275911 / math.sqrt(2.0)) * np.abs(z))
     poly = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027
                                                                            + t * 1.061405429))))
-    return 0.5 + np.copysign(0.5 - 0.5 * poly * gauss, z)
+    return np.copysign(1.0 - poly * gauss, z)
 
 
 class TrailFit:
@@ -68,6 +70,11 @@ class TrailFit:
     px of ten steps' centre for the median star of 16 mm frames trailed 6-14
     px (90th percentile 0.01-0.2 px: faint and blended stars); from the
     detection itself the 90th percentile on 14 px trails was 0.6 px.
+
+    The unknowns are the centre's offsets from the start along and across
+    the trail in units of sigma, and the flux; the model is fitted up to a
+    constant factor per star (the flux takes it), so its constants are left
+    out of every pixel's arithmetic.
     """
 
     def __init__(self, sigma: float, iterations: int = 3, max_shift: float = 3.0) -> None:
@@ -88,7 +95,6 @@ class TrailFit:
             return out
         s = self.sigma
         along_half = length[rows] / 2.0 + 3.0 * s + 2.0         # the band, px from the start
-        across_half = 3.0 * s + 1.0
         half = int(math.ceil(float(along_half.max())))         # the box holding every band
         h, w = image.shape
         ix, iy = np.rint(out[rows, 0]).astype(np.intp), np.rint(out[rows, 1]).astype(np.intp)
@@ -101,36 +107,41 @@ class TrailFit:
         gy, gx = np.divmod(np.arange((2 * half + 1) ** 2), 2 * half + 1)
         gy, gx = gy - half, gx - half                            # the box's offsets, row-major
         start = out[rows]
-        fx, fy = start[:, 0:1] - ix[:, None], start[:, 1:2] - iy[:, None]   # start - pixel
-        a = (gx - fx) * u[:, 0:1] + (gy - fy) * u[:, 1:2]
-        b = (gy - fy) * u[:, 0:1] - (gx - fx) * u[:, 1:2]
-        band = (np.abs(a) <= along_half[:, None]) & (np.abs(b) <= across_half)
+        dx = gx - (start[:, 0:1] - ix[:, None])                  # (n, box): pixel - start, px
+        dy = gy - (start[:, 1:2] - iy[:, None])
+        a = (dx * u[:, 0:1] + dy * u[:, 1:2]) / s                # along the trail, sigma
+        b = (dy * u[:, 0:1] - dx * u[:, 1:2]) / s                # across it
+        band = (np.abs(a) <= along_half[:, None] / s) & (np.abs(b) <= 3.0 + 1.0 / s)
         star, cell = np.nonzero(band)
         counts = np.bincount(star, minlength=n)
         slot = np.arange(len(star)) - np.repeat(np.cumsum(counts) - counts, counts)
-        pick = np.full((n, int(counts.max())), half * (2 * half + 1) + half)  # box centre
-        pick[star, slot] = cell
-        px, py = gx[pick] + ix[:, None], gy[pick] + iy[:, None]
-        sky = np.median(image[iy[:, None] + _rim(half, 1), ix[:, None] + _rim(half, 0)], axis=1)
-        data = image[py, px] - sky[:, None]
-        px, py = px.astype(np.float64), py.astype(np.float64)
-        pad = np.ones(pick.shape, bool)
-        pad[star, slot] = False
-        data[pad], px[pad] = 0.0, _FAR                  # no light, and no model there
+        shape = (n, int(counts.max()))
+        rim = image[iy[:, None] + _rim(half, 1), ix[:, None] + _rim(half, 0)]
+        mid = rim.shape[1] // 2                                  # an even count: two middles
+        sky = np.partition(rim, (mid - 1, mid), axis=1)[:, mid - 1:mid + 1].mean(axis=1)
+        data = np.zeros(shape)
+        data[star, slot] = image[gy[cell] + iy[star], gx[cell] + ix[star]] - sky[star]
+        a_band = np.full(shape, _FAR)
+        b_band = np.zeros(shape)
+        a_band[star, slot], b_band[star, slot] = a[star, cell], b[star, cell]
         light = np.maximum(data, 0.0)
-        along = np.einsum("ij,ij->i", light, a[np.arange(n)[:, None], pick]) / np.maximum(
-            light.sum(axis=1), 1e-30)
-        c = start + along[:, None] * u
-        jac = np.empty((n, 3, pick.shape[1]))
+        centre = np.zeros((2, n))                # from the start, along and across, sigma
+        centre[0] = np.einsum("ij,ij->i", light, a_band) / np.maximum(light.sum(axis=1), 1e-30)
+        ends = np.stack((length[rows], -length[rows]))[:, :, None] / (2.0 * s)
+        jac = np.empty((n, 3, shape[1]))
         for _ in range(self.iterations):
-            c += self._step(jac, data, px - c[:, 0:1], py - c[:, 1:2], u, length[rows])
+            centre += self._step(jac, data, a_band - centre[0][:, None],
+                                 b_band - centre[1][:, None], ends)
+        across = np.stack((-u[:, 1], u[:, 0]), axis=1)          # b's direction
+        c = start + s * (centre[0][:, None] * u + centre[1][:, None] * across)
         ok = np.all(np.isfinite(c), axis=1) & np.all(np.abs(c - start) <= self.max_shift, axis=1)
         out[rows[ok]] = c[ok]
         return out
 
-    def _step(self, jac: np.ndarray, data: np.ndarray, dx: np.ndarray, dy: np.ndarray,
-              u: np.ndarray, length: np.ndarray) -> np.ndarray:
-        """The Gauss-Newton step (n, 2) of the centres, px, the flux solved at each.
+    def _step(self, jac: np.ndarray, data: np.ndarray, a: np.ndarray, b: np.ndarray,
+              ends: np.ndarray) -> np.ndarray:
+        """The Gauss-Newton step (2, n) of the centres along and across, sigma, the flux
+        solved at each.
 
         With the flux F at its least-squares value for the current centre
         (the gradient along F is zero), the step of the 3 x 3 system in (c, F)
@@ -138,44 +149,44 @@ class TrailFit:
         M_cc - M_cF M_Fc / M_FF, M the unit-flux model's normal matrix; each
         entry a product of per-star sums, no batched solve.
         """
-        self._model(dx, dy, u, length, jac)
-        m = np.einsum("npk,nqk->npq", jac, jac)                # (n, 3, 3) over (cx, cy, F)
-        jd = np.matmul(jac, data[..., None])[..., 0]           # (n, 3)
+        self._model(a, b, ends, jac)
+        m = np.einsum("npk,nqk->npq", jac, jac)                # (n, 3, 3) over (ca, cb, F)
+        jd = np.einsum("npk,nk->np", jac, data)                # (n, 3)
         with np.errstate(divide="ignore", invalid="ignore"):
             flux = jd[:, 2] / m[:, 2, 2]
-            rx = jd[:, 0] - flux * m[:, 0, 2]
-            ry = jd[:, 1] - flux * m[:, 1, 2]
-            sxx = m[:, 0, 0] - m[:, 0, 2] ** 2 / m[:, 2, 2]
-            sxy = m[:, 0, 1] - m[:, 0, 2] * m[:, 1, 2] / m[:, 2, 2]
-            syy = m[:, 1, 1] - m[:, 1, 2] ** 2 / m[:, 2, 2]
-            scale = flux * (sxx * syy - sxy * sxy)
-            step = np.stack((syy * rx - sxy * ry, sxx * ry - sxy * rx), axis=1) / scale[:, None]
-        step[~(np.abs(scale) > 1e-30)] = 0.0                   # singular (or NaN): no step
+            ra = jd[:, 0] - flux * m[:, 0, 2]
+            rb = jd[:, 1] - flux * m[:, 1, 2]
+            saa = m[:, 0, 0] - m[:, 0, 2] ** 2 / m[:, 2, 2]
+            sab = m[:, 0, 1] - m[:, 0, 2] * m[:, 1, 2] / m[:, 2, 2]
+            sbb = m[:, 1, 1] - m[:, 1, 2] ** 2 / m[:, 2, 2]
+            scale = flux * (saa * sbb - sab * sab)
+            step = np.stack(((sbb * ra - sab * rb) * _ALONG, saa * rb - sab * ra)) / scale
+        step[:, ~(np.abs(scale) > 1e-30)] = 0.0                # singular (or NaN): no step
         return step
 
-    def _model(self, dx: np.ndarray, dy: np.ndarray, u: np.ndarray, length: np.ndarray,
-               out: np.ndarray) -> None:
-        """Into ``out`` (n, 3, k): dg / dcx, dg / dcy and g, the unit-flux trail at offsets
-        (dx, dy) (n, k) from its centre."""
-        s = self.sigma
-        a = dx * u[:, 0:1] + dy * u[:, 1:2]
-        b = dy * u[:, 0:1] - dx * u[:, 1:2]
-        half = 0.5 * length[:, None]
-        across = np.exp(-0.5 * (b / s) ** 2) / (math.sqrt(2.0 * math.pi) * s)
-        z_hi, z_lo = (a + half) / s, (a - half) / s
-        e_hi, e_lo = np.exp(-0.5 * z_hi * z_hi), np.exp(-0.5 * z_lo * z_lo)
-        g = out[:, 2]
-        np.multiply(across, (_cdf(z_hi, e_hi) - _cdf(z_lo, e_lo)) / length[:, None], out=g)
-        dg_da = across * (e_hi - e_lo) / (math.sqrt(2.0 * math.pi) * s * length[:, None])
-        dg_db = -b / (s * s) * g
-        # a and b fall as c moves along u and across it: dc = -(da u + db v), v = (-u_y, u_x)
-        np.subtract(dg_db * u[:, 1:2], dg_da * u[:, 0:1], out=out[:, 0])
-        np.add(dg_da * u[:, 1:2], dg_db * u[:, 0:1], out=out[:, 1])
-        np.negative(out[:, 1], out=out[:, 1])
+    @staticmethod
+    def _model(a: np.ndarray, b: np.ndarray, ends: np.ndarray, out: np.ndarray) -> None:
+        """Into ``out`` (n, 3, k): the trail g at (a, b) (n, k) sigma along and across from
+        its centre, up to a factor per star, and its derivatives by the centre's offsets
+        along (scaled by 1 / _ALONG) and across.
+
+        g = exp(-b^2 / 2) [erf((a + h) / sqrt 2) - erf((a - h) / sqrt 2)], h the half
+        length in sigma (``ends``: (2, n, 1), +h and -h); the centre moving by da
+        moves a by -da, so dg / dda = -sqrt(2 / pi) exp(-b^2 / 2) (e(a + h) - e(a - h)),
+        e(z) = exp(-z^2 / 2), and dg / ddb = b g.
+        """
+        z = a[None] + ends                                     # both ends of the trail
+        e = np.exp(-0.5 * z * z)
+        across = np.exp(-0.5 * b * b)
+        edge = _signed_erf(z, e)
+        np.multiply(across, edge[0] - edge[1], out=out[:, 2])
+        np.multiply(across, e[0] - e[1], out=out[:, 0])
+        np.multiply(b, out[:, 2], out=out[:, 1])
 
 
 def _rim(half: int, axis: int) -> np.ndarray:
-    """Offsets on ``axis`` (0: x, 1: y) of the border pixels of a box of ``half`` px."""
+    """Offsets on ``axis`` (0: x, 1: y) of the 8 ``half`` border pixels of a box of ``half``
+    px."""
     off, inner = np.arange(-half, half + 1), np.arange(-half + 1, half)
     ends = np.repeat([-half, half], 2 * half + 1)            # the first and last row
     sides = np.repeat([-half, half], 2 * half - 1)           # the first and last column
