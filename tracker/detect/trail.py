@@ -188,8 +188,7 @@ def _rim(half: int, axis: int) -> np.ndarray:
     """Offsets on ``axis`` (0: x, 1: y) of the 8 ``half`` border pixels of a box of ``half``
     px."""
     off, inner = np.arange(-half, half + 1), np.arange(-half + 1, half)
-    ends = np.repeat([-half, half], 2 * half + 1)            # the first and last row
-    sides = np.repeat([-half, half], 2 * half - 1)           # the first and last column
-    if axis == 0:
-        return np.concatenate((np.tile(off, 2), sides))
-    return np.concatenate((ends, np.tile(inner, 2)))
+    first, last = np.full(2 * half + 1, -half), np.full(2 * half + 1, half)
+    if axis == 0:                            # the first and last row, then column
+        return np.concatenate((off, off, first[2:], last[2:]))
+    return np.concatenate((first, last, inner, inner))
