@@ -282,3 +282,21 @@ def test_attitude_ages_from_its_exposure_and_its_latency_is_measured_to_the_wire
     assert [p.values["frame_id"] for p in got] == [2]
     assert stats["dropped_stale_attitude"] == 1 and stats["sent_attitude"] == 1
     assert link.latency.count == 1 and link.latency.percentiles()["max"] >= 50.0
+
+
+def test_an_attitude_sooner_than_the_output_rate_allows_is_counted_as_held_back(pty):
+    """At 30 Hz, a frame 10 ms after the last (a late frame, then the next on time) sends
+    no ATTITUDE, and the link counts it, so every frame's ATTITUDE is accounted for."""
+    master, path = pty
+    now = [10**12]
+    with Link(_cfg(path, queue_attitude=8, attitude_rate_hz=30.0), Handler(),
+              clock=lambda: now[0]) as link:
+        common = {"q": None, "sigma_cross_arcsec": 2.0, "sigma_roll_arcsec": 20.0,
+                  "matched": 0, "mode": Mode.LOST_IN_SPACE}
+        sent = []
+        for k, dt_ms in enumerate((0, 10, 40, 100)):
+            now[0] += dt_ms * 10**6
+            sent.append(link.send_attitude(frame_id=k, t_ns=k, t_ref_ns=now[0], **common))
+        stats = link.stats()
+    assert sent == [True, False, True, True]
+    assert stats["over_rate_attitude"] == 1 and stats["queued_attitude"] == 3

@@ -17,7 +17,10 @@ Exit status 0 when every frame was processed, the FC decoded every ATTITUDE
 the service sent (nothing lost on the cable), every ATTITUDE queued was sent
 or dropped as stale (older than ``link.max_age_ms`` when its turn came, as on
 a machine too busy for the frame rate: counted and printed), and at least
-90 % of those the FC decoded were valid.
+90 % of those the FC decoded were valid. A frame that came sooner after the
+previous one than ``link.attitude_rate_hz`` allows (a late frame on a busy
+machine, then the next on time) has its ATTITUDE held back: counted and
+printed as well.
 """
 
 from __future__ import annotations
@@ -203,7 +206,9 @@ def run(args, cfg) -> int:
               f"corrected in {corrected})")
     queued, stale = link.get("queued_attitude", 0), link.get("dropped_stale_attitude", 0)
     print(f"  attitudes            {queued} queued, {sent.get('attitude', 0)} sent, {stale} "
-          "dropped as stale (older than link.max_age_ms: a busy machine)")
+          "dropped as stale (older than link.max_age_ms: a busy machine), "
+          f"{link.get('over_rate_attitude', 0)} held back by link.attitude_rate_hz (a late "
+          "frame followed at once by the next)")
     print(f"  faults               {json.dumps(result.get('faults', {}))}")
     problem = _shortfall(args.frames, result["processed"], link, decoded.get("ATTITUDE", 0),
                          len(errors))

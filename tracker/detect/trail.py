@@ -13,14 +13,15 @@ and coordinates a along the trail and b across it, measured from c,
 Phi the normal CDF). A Gaussian-windowed centroid (tracker.detect.windowed)
 has no unique fixed point along a trail much longer than its window: any
 point of the flat top is one, and noise picks it. The fit of (F, c) by
-Gauss-Newton on the pixels of a box around the star, the background taken
-as the median of the box's border, has one: the trail's centre.
+Gauss-Newton on the pixels of a band along the trail (:class:`TrailFit`),
+the background taken as the median of the border of a square box holding
+the band, has one: the trail's centre.
 
 Used by tracking, which knows the smear of each star from the rate
 (tracker.identify.predict); stars whose trail is shorter than
 ``MIN_TRAIL_SIGMAS`` sigma keep their windowed centroid, and so do stars
-whose box leaves the frame or whose fit does not converge within
-``max_shift`` px of the start. The two agree on short trails: on realistic
+whose box leaves the frame or whose fitted centre lies more than
+``max_shift`` px from the detection. The two agree on short trails: on realistic
 16 mm frames (PSF 1.0-1.6 px, 3 fields each, 50-110 stars) their RMS errors
 against the truth differed by less than 10 %, either way, up to 2.5 sigma
 of trail; from 3 sigma the fit's was 10-40 % lower.
@@ -35,28 +36,49 @@ import numpy as np
 __all__ = ["TrailFit", "normal_cdf", "MIN_TRAIL_SIGMAS"]
 
 MIN_TRAIL_SIGMAS = 2.5
+_FAR = 1e6      # sigma: a padded pixel's place along the trail, where the model is exactly zero
+_ALONG = -math.sqrt(math.pi / 2.0)   # the along column's scale: dg / dda = that column / _ALONG
 
 
 def normal_cdf(z: np.ndarray) -> np.ndarray:
     """Phi(z), the standard normal CDF, to 1.5e-7 (Abramowitz and Stegun 7.1.26 for erf)."""
-    x = np.abs(z) / math.sqrt(2.0)
-    t = 1.0 / (1.0 + 0.3275911 * x)
+    return 0.5 + 0.5 * _signed_erf(z, np.exp(-0.5 * z * z))
+
+
+def _signed_erf(z: np.ndarray, gauss: np.ndarray) -> np.ndarray:
+    """2 Phi(z) - 1 = erf(z / sqrt 2), given ``gauss`` = exp(-z^2 / 2) (the line-spread
+    model has it already)."""
+    t = 1.0 / (1.0 + (0.3275911 / math.sqrt(2.0)) * np.abs(z))
     poly = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027
                                                                            + t * 1.061405429))))
-    erf = 1.0 - poly * np.exp(-x * x)
-    return 0.5 * (1.0 + np.sign(z) * erf)
+    return np.copysign(1.0 - poly * gauss, z)
 
 
 class TrailFit:
-    """Fits trailed stars of a PSF of ``sigma`` px; at most ``iterations`` Gauss-Newton steps.
+    """Fits trailed stars of a PSF of ``sigma`` px: ``iterations`` Gauss-Newton steps each.
 
-    A star's steps stop once one moves its centre by less than ``tolerance`` px.
+    All trailed stars of a frame are fitted together: each one's pixels are
+    the band around its start (the detection) along its smear, ``L / 2 +
+    3 sigma + 2`` px each way along the trail and ``3 sigma + 1`` across
+    (a square box holds two to three times more pixels, where the model is
+    zero), padded to the longest band by pixels placed far away (model and
+    derivatives exactly zero there, data zero), so every step is a few
+    whole-array operations over all stars at once, no per-star loop and no
+    test of convergence. The start is the detection moved along the trail
+    to the first moment of the band's light (the detection may sit anywhere
+    on the trail's flat top). From there three steps land within 0.0001-0.01
+    px of ten steps' centre for the median star of 16 mm frames trailed 6-14
+    px (90th percentile 0.01-0.2 px: faint and blended stars); from the
+    detection itself the 90th percentile on 14 px trails was 0.6 px.
+
+    The unknowns are the centre's offsets from the start along and across
+    the trail in units of sigma, and the flux; the model is fitted up to a
+    constant factor per star (the flux takes it), so its constants are left
+    out of every pixel's arithmetic.
     """
 
-    def __init__(self, sigma: float, iterations: int = 6, max_shift: float = 3.0,
-                 tolerance: float = 0.01) -> None:
+    def __init__(self, sigma: float, iterations: int = 3, max_shift: float = 3.0) -> None:
         self.sigma = float(sigma)
-        self.tolerance = float(tolerance)
         self.min_length = MIN_TRAIL_SIGMAS * self.sigma     # shorter trails are not fitted
         self.iterations = int(iterations)
         self.max_shift = float(max_shift)
@@ -71,62 +93,102 @@ class TrailFit:
         rows = np.flatnonzero(length >= self.min_length)
         if len(rows) == 0:
             return out
-        half = int(math.ceil(float(length[rows].max()) / 2.0 + 3.0 * self.sigma + 1.0))
+        s = self.sigma
+        along_half = length[rows] / 2.0 + 3.0 * s + 2.0         # the band, px from the start
+        half = int(math.ceil(float(along_half.max())))         # the box holding every band
         h, w = image.shape
         ix, iy = np.rint(out[rows, 0]).astype(np.intp), np.rint(out[rows, 1]).astype(np.intp)
         inside = (ix >= half) & (iy >= half) & (ix < w - half) & (iy < h - half)
-        rows, ix, iy = rows[inside], ix[inside], iy[inside]
+        rows, ix, iy, along_half = rows[inside], ix[inside], iy[inside], along_half[inside]
         if len(rows) == 0:
             return out
-        off = np.arange(-half, half + 1)
-        gy, gx = np.meshgrid(off, off, indexing="ij")
-        pix = image[iy[:, None, None] + gy[None], ix[:, None, None] + gx[None]].astype(np.float64)
-        border = np.concatenate((pix[:, 0, :], pix[:, -1, :], pix[:, 1:-1, 0], pix[:, 1:-1, -1]),
-                                axis=1)
-        data = (pix - np.median(border, axis=1)[:, None, None]).reshape(len(rows), -1)
-        px = (gx.ravel()[None, :] + ix[:, None]).astype(np.float64)
-        py = (gy.ravel()[None, :] + iy[:, None]).astype(np.float64)
+        n = len(rows)
         u = smear[rows] / length[rows, None]                     # unit vector along the trail
-        lengths = length[rows]
-        c = out[rows].copy()
-        active = np.arange(len(rows))            # stars still moving (converged ones stop)
+        gy, gx = np.divmod(np.arange((2 * half + 1) ** 2), 2 * half + 1)
+        gy, gx = gy - half, gx - half                            # the box's offsets, row-major
+        start = out[rows]
+        dx = gx - (start[:, 0:1] - ix[:, None])                  # (n, box): pixel - start, px
+        dy = gy - (start[:, 1:2] - iy[:, None])
+        a = (dx * u[:, 0:1] + dy * u[:, 1:2]) / s                # along the trail, sigma
+        b = (dy * u[:, 0:1] - dx * u[:, 1:2]) / s                # across it
+        band = (np.abs(a) <= along_half[:, None] / s) & (np.abs(b) <= 3.0 + 1.0 / s)
+        star, cell = np.nonzero(band)
+        counts = np.bincount(star, minlength=n)
+        slot = np.arange(len(star)) - np.repeat(np.cumsum(counts) - counts, counts)
+        shape = (n, int(counts.max()))
+        rim = image[iy[:, None] + _rim(half, 1), ix[:, None] + _rim(half, 0)]
+        mid = rim.shape[1] // 2                                  # an even count: two middles
+        sky = np.partition(rim, (mid - 1, mid), axis=1)[:, mid - 1:mid + 1].mean(axis=1)
+        data = np.zeros(shape)
+        data[star, slot] = image[gy[cell] + iy[star], gx[cell] + ix[star]] - sky[star]
+        a_band = np.full(shape, _FAR)
+        b_band = np.zeros(shape)
+        a_band[star, slot], b_band[star, slot] = a[star, cell], b[star, cell]
+        light = np.maximum(data, 0.0)
+        centre = np.zeros((2, n))                # from the start, along and across, sigma
+        centre[0] = np.einsum("ij,ij->i", light, a_band) / np.maximum(light.sum(axis=1), 1e-30)
+        ends = np.stack((length[rows], -length[rows]))[:, :, None] / (2.0 * s)
+        jac = np.empty((n, 3, shape[1]))
         for _ in range(self.iterations):
-            data_a, c_a = data[active], c[active]
-            g, dg = self._model(px[active] - c_a[:, 0:1], py[active] - c_a[:, 1:2], u[active],
-                                lengths[active])
-            flux = np.einsum("ij,ij->i", g, data_a) / np.maximum(np.einsum("ij,ij->i", g, g),
-                                                                 1e-30)
-            resid = data_a - flux[:, None] * g
-            jac = flux[:, None, None] * dg                       # (n, 2, pixels): d model / dc
-            jac = np.concatenate((jac, g[:, None, :]), axis=1)   # and d model / dF
-            hess = np.einsum("npk,nqk->npq", jac, jac)
-            grad = np.einsum("npk,nk->np", jac, resid)
-            good = np.abs(np.linalg.det(hess)) > 1e-30
-            step = np.zeros_like(grad)
-            step[good] = np.linalg.solve(hess[good], grad[good][..., None])[..., 0]
-            c[active] = c_a + step[:, :2]
-            active = active[np.abs(step[:, :2]).max(axis=1) >= self.tolerance]  # NaN stops
-            if len(active) == 0:
-                break
-        ok = np.all(np.isfinite(c), axis=1) & np.all(np.abs(c - out[rows]) <= self.max_shift,
-                                                     axis=1)
+            centre += self._step(jac, data, a_band - centre[0][:, None],
+                                 b_band - centre[1][:, None], ends)
+        across = np.stack((-u[:, 1], u[:, 0]), axis=1)          # b's direction
+        c = start + s * (centre[0][:, None] * u + centre[1][:, None] * across)
+        ok = np.all(np.isfinite(c), axis=1) & np.all(np.abs(c - start) <= self.max_shift, axis=1)
         out[rows[ok]] = c[ok]
         return out
 
-    def _model(self, dx: np.ndarray, dy: np.ndarray, u: np.ndarray,
-               length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The unit-flux trail g at offsets (dx, dy) from its centre, and dg / dc (n, 2, k)."""
-        s = self.sigma
-        a = dx * u[:, 0:1] + dy * u[:, 1:2]
-        b = -dx * u[:, 1:2] + dy * u[:, 0:1]
-        half = 0.5 * length[:, None]
-        across = np.exp(-0.5 * (b / s) ** 2) / (math.sqrt(2.0 * math.pi) * s)
-        along = (normal_cdf((a + half) / s) - normal_cdf((a - half) / s)) / length[:, None]
-        g = across * along
-        phi = np.exp(-0.5 * ((a + half) / s) ** 2) - np.exp(-0.5 * ((a - half) / s) ** 2)
-        dg_da = across * phi / (math.sqrt(2.0 * math.pi) * s * length[:, None])
-        dg_db = -b / (s * s) * g
-        # a and b fall as c moves along u and across it: dc = -(da u + db v), v = (-u_y, u_x)
-        dgx = -(dg_da * u[:, 0:1] - dg_db * u[:, 1:2])
-        dgy = -(dg_da * u[:, 1:2] + dg_db * u[:, 0:1])
-        return g, np.stack((dgx, dgy), axis=1)
+    def _step(self, jac: np.ndarray, data: np.ndarray, a: np.ndarray, b: np.ndarray,
+              ends: np.ndarray) -> np.ndarray:
+        """The Gauss-Newton step (2, n) of the centres along and across, sigma, the flux
+        solved at each.
+
+        With the flux F at its least-squares value for the current centre
+        (the gradient along F is zero), the step of the 3 x 3 system in (c, F)
+        is that of its 2 x 2 Schur complement in c: (S / F) dc = J_c r, S =
+        M_cc - M_cF M_Fc / M_FF, M the unit-flux model's normal matrix; each
+        entry a product of per-star sums, no batched solve.
+        """
+        self._model(a, b, ends, jac)
+        m = np.einsum("npk,nqk->npq", jac, jac)                # (n, 3, 3) over (ca, cb, F)
+        jd = np.einsum("npk,nk->np", jac, data)                # (n, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            flux = jd[:, 2] / m[:, 2, 2]
+            ra = jd[:, 0] - flux * m[:, 0, 2]
+            rb = jd[:, 1] - flux * m[:, 1, 2]
+            saa = m[:, 0, 0] - m[:, 0, 2] ** 2 / m[:, 2, 2]
+            sab = m[:, 0, 1] - m[:, 0, 2] * m[:, 1, 2] / m[:, 2, 2]
+            sbb = m[:, 1, 1] - m[:, 1, 2] ** 2 / m[:, 2, 2]
+            scale = flux * (saa * sbb - sab * sab)
+            step = np.stack(((sbb * ra - sab * rb) * _ALONG, saa * rb - sab * ra)) / scale
+        step[:, ~(np.abs(scale) > 1e-30)] = 0.0                # singular (or NaN): no step
+        return step
+
+    @staticmethod
+    def _model(a: np.ndarray, b: np.ndarray, ends: np.ndarray, out: np.ndarray) -> None:
+        """Into ``out`` (n, 3, k): the trail g at (a, b) (n, k) sigma along and across from
+        its centre, up to a factor per star, and its derivatives by the centre's offsets
+        along (scaled by 1 / _ALONG) and across.
+
+        g = exp(-b^2 / 2) [erf((a + h) / sqrt 2) - erf((a - h) / sqrt 2)], h the half
+        length in sigma (``ends``: (2, n, 1), +h and -h); the centre moving by da
+        moves a by -da, so dg / dda = -sqrt(2 / pi) exp(-b^2 / 2) (e(a + h) - e(a - h)),
+        e(z) = exp(-z^2 / 2), and dg / ddb = b g.
+        """
+        z = a[None] + ends                                     # both ends of the trail
+        e = np.exp(-0.5 * z * z)
+        across = np.exp(-0.5 * b * b)
+        edge = _signed_erf(z, e)
+        np.multiply(across, edge[0] - edge[1], out=out[:, 2])
+        np.multiply(across, e[0] - e[1], out=out[:, 0])
+        np.multiply(b, out[:, 2], out=out[:, 1])
+
+
+def _rim(half: int, axis: int) -> np.ndarray:
+    """Offsets on ``axis`` (0: x, 1: y) of the 8 ``half`` border pixels of a box of ``half``
+    px."""
+    off, inner = np.arange(-half, half + 1), np.arange(-half + 1, half)
+    first, last = np.full(2 * half + 1, -half), np.full(2 * half + 1, half)
+    if axis == 0:                            # the first and last row, then column
+        return np.concatenate((off, off, first[2:], last[2:]))
+    return np.concatenate((first, last, inner, inner))

@@ -269,6 +269,7 @@ class Link:
         packet's age (``max_age_ms``) and its latency run from it.
         """
         if not self.gate.due(MsgId.ATTITUDE, self._clock()):
+            self._count("over_rate_attitude")   # a frame sooner than the output rate's period
             return False
         flags = int(flags) & _SENT_FLAGS
         if q is None:
@@ -314,7 +315,8 @@ class Link:
 
     def stats(self) -> dict:
         """Counters: queued_/sent_/dropped_full_/dropped_stale_/dropped_write_/unsent_<class>
-        (class: attitude, reply, centroids, status), bytes_sent, port_errors, reopens,
+        (class: attitude, reply, centroids, status), over_rate_attitude (frames whose
+        ATTITUDE the output rate held back), bytes_sent, port_errors, reopens,
         open_failures, commands, acks, nacks, internal_errors, rx_<decoder counter>."""
         with self._count_lock:
             out = dict(self.counters)
