@@ -268,7 +268,10 @@ class DetectConfig:
                               "image of the sky is rougher than a point)",
                               "ratio", min=1.0, max=1e6)
     sharp_min_snr: float = knob(10.0, "default: apply the sharpness and elongation tests "
-                                "only above this SNR", "sigma", min=0.0, max=1e6)
+                                "only above this SNR (below it a spot narrower than "
+                                "sharp_size_ratio is rejected only when narrower than a star "
+                                "by 4 spreads of its width's noise)", "sigma", min=0.0,
+                                max=1e6)
     elongation_max: float = knob(0.3, "default: flag ELONGATED above this ellipticity of "
                                  "the windowed moments", "ratio", min=0.0, max=1.0)
     extended_ratio: float = knob(2.0, "default: flag EXTENDED an unsaturated source whose "

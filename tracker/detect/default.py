@@ -43,10 +43,12 @@ handled, sigma 3.5 px):
    pixel-integrated PSF for the centre (no pixel-phase bias; saturated
    pixels censored; tracker.detect.fit), flux, SNR and shape
    (tracker.detect.windowed). Spots much narrower than the PSF, or rougher
-   at the pixel scale than any image of the sky (cosmic-ray clusters that
-   survived steps 3-4), are rejected and counted; so are saturated spots
-   holding less light than the PSF's area times their clipped peak (judged
-   at any SNR: on glare a track's SNR is low, its shape still plain). With
+   at the pixel scale than a star of their flux (cosmic-ray clusters that
+   survived steps 3-4; tracker.detect.roughness), are rejected and counted
+   (fainter ones when narrower than a star beyond their noise); so are
+   saturated spots holding less light than the PSF's area times their
+   clipped peak (judged at any SNR: on glare a track's SNR is low, its
+   shape still plain). With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
    every centre instead, from the frame as delivered; the shape tests
@@ -137,6 +139,7 @@ _NARROW_SNR = 50.0             # ... at this SNR is a particle's charge, not a s
 _SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
 _CLIPPED_AREA = 0.6           # a saturated spot's flux/peak under this x the PSF's is sharp
 _CLIP_SIGMAS = 4.0             # full scale this many pixel noises above the background
+_WIDTH_SPREADS = 4.0           # below sharp_min_snr: narrower than a star by this many spreads
 _REMNANT_WIDTH = 0.85          # a spot this narrow and ...
 _REMNANT_ROUGH = 3.0           # ... this rough (x a star's of its flux) is a track's remnant
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
@@ -818,6 +821,15 @@ class DefaultDetector:
                               * v["peak"])
         narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
         sharp = judged & (narrow | rougher(self.cfg.rough_ratio))
+        # Fainter, a spot's width is known to about sqrt(2) / SNR of a star's (the spread
+        # of a second moment under the matched Gaussian weight, from the weighted noise,
+        # whatever the spot's own width): one narrower than ``sharp_size_ratio``, and
+        # than a star by more than _WIDTH_SPREADS of that spread, is a hot pixel or a
+        # particle's hit the impulse stage left (its noisy 3x3 median or neighbours
+        # made it look like a star's light)
+        if self.speckle_fit is None:
+            sharp |= spot & (width < self.cfg.sharp_size_ratio) & (
+                (1.0 - width) * known > _WIDTH_SPREADS * math.sqrt(2.0))
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
