@@ -371,7 +371,7 @@ def test_psf_constants_kept_per_step_equal_those_computed_afresh():
     shape = (200, 240)
     moving = make_detector(CFG, shape, 10)
     names = ("filter_gain", "peak_threshold", "impulse_contrast", "impulse_ring",
-             "point_roughness")
+             "star_roughness")
     for sigma in (0.7, 2.9, 1.6, 0.7):
         moving._configure(sigma)
         fresh = make_detector(dataclasses.replace(CFG, psf_sigma_px=sigma), shape, 10)

@@ -262,12 +262,16 @@ class DetectConfig:
                                    "streaked star keeps the PSF's width)", "fraction",
                                    min=0.0, max=1.0)
     rough_ratio: float = knob(12.0, "default: reject a spot whose pixel-scale roughness "
-                              "(Laplacian energy over energy) exceeds this multiple of a point "
-                              "source's under the frame's PSF (clusters of cosmic-ray hits and "
-                              "touching impulses; no image of the sky is rougher than a point)",
+                              "(Laplacian energy over energy) exceeds this multiple of a star's "
+                              "of its flux under the frame's PSF, and by more than its noise "
+                              "makes (clusters of cosmic-ray hits and touching impulses; no "
+                              "image of the sky is rougher than a point)",
                               "ratio", min=1.0, max=1e6)
     sharp_min_snr: float = knob(10.0, "default: apply the sharpness and elongation tests "
-                                "only above this SNR", "sigma", min=0.0, max=1e6)
+                                "only above this SNR (below it a spot narrower than "
+                                "sharp_size_ratio is rejected only when narrower than a star "
+                                "by 4 spreads of its width's noise)", "sigma", min=0.0,
+                                max=1e6)
     elongation_max: float = knob(0.3, "default: flag ELONGATED above this ellipticity of "
                                  "the windowed moments", "ratio", min=0.0, max=1.0)
     extended_ratio: float = knob(2.0, "default: flag EXTENDED an unsaturated source whose "

@@ -10,6 +10,14 @@ top few per cent, and dark impulses, in the bottom few, drop out):
 * noise = mean |value - level| over the middle half / 0.3247, the ratio of
   that mean to sigma for a Gaussian (2 (phi(0) - phi(0.6745)) / 0.5).
 
+Integer frames are read on a lattice: a middle half or a percentile of
+integers is stuck to whole ADU (rounded Gaussian noise of 0.7 ADU reads
+1.26). Their spread is measured on the samples plus a fixed uniform dither
+on (-1/2, 1/2), which spreads each over its unit bin (the samples' histogram,
+not its lattice), and the 1/12 ADU^2 the independent dither adds is taken
+off: what remains is the integers' own noise, rounding included (rounding
+is noise the filters see too). The level stays the integers' own.
+
 Both grids then pass a 3x3 median (a tile swamped by a bright star or a
 cluster takes its neighbours' value), and noise is floored at ``floor``.
 :meth:`BackgroundGrid.upsample` interpolates a grid bilinearly to the full
@@ -35,6 +43,7 @@ _MEAN_ABS_IN_IQR = 0.3247  # E|z| for a standard normal z restricted to its midd
 _ONE_SIGMA_ABOVE = 0.84134  # fraction of a Gaussian below mean + sigma
 _TRIM_FRACTION = 1.0 / 16.0  # trimmed noise: drop this fraction of samples at each end
 _DECILES_10_30 = 0.7573   # distance from a Gaussian's 10th to its 30th percentile, in sigma
+_DITHER_SEED = 12         # of the fixed dither of integer samples (any seed will do)
 
 
 def _truncated_normal_std(p: float) -> float:
@@ -91,10 +100,19 @@ class BackgroundGrid:
         self.minus_samples = np.zeros(self.index.shape, np.float32)
         self.int_samples = np.zeros(self.index.shape, np.uint16)  # reads of uint16 frames
         self.middle = self.samples[..., m // 4: m - m // 4]
+        # integer frames: a fixed uniform dither on (-1/2, 1/2) spreads each sample over
+        # its unit bin (the same every frame: the same frame gives the same statistics);
+        # stratified: each tile's m values are (k + 1/2) / m - 1/2 in a shuffled order
+        even = ((np.arange(m) + 0.5) / m - 0.5).astype(np.float32)
+        self.dither = np.random.default_rng(_DITHER_SEED).permuted(
+            np.broadcast_to(even, self.index.shape), axis=-1)
+        self.rounded = np.zeros(self.index.shape, np.float32)
         self.deviation = np.zeros(self.middle.shape, np.float32)
         self.raw = np.zeros(self.grid_shape, np.float32)
         self.level_raw = np.zeros(self.grid_shape, np.float32)
         self.upper = np.zeros(self.grid_shape, np.float32)
+        self.trimmed = np.zeros(self.grid_shape, np.float32)
+        self.smoothed = np.zeros(self.grid_shape, np.float32)
         self._upper = int(round(_ONE_SIGMA_ABOVE * (m - 1)))
         self._trim = max(1, int(round(_TRIM_FRACTION * m)))
         self._trimmed_std = _truncated_normal_std(self._trim / m)
@@ -137,46 +155,73 @@ class BackgroundGrid:
         all three agree.
         """
         m = self.samples.shape[-1]
-        if padded.dtype == self.int_samples.dtype and not minus:
-            # sorted as integers (twice as fast), the same order of the same values
+        lattice = padded.dtype == self.int_samples.dtype and not minus
+        if padded.dtype == self.int_samples.dtype:
             np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
-            self.int_samples.sort(axis=-1)
             np.copyto(self.samples, self.int_samples)
         else:
-            if padded.dtype == self.int_samples.dtype:
-                np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
-                np.copyto(self.samples, self.int_samples)
-            else:
-                np.take(padded.ravel(), self.index, out=self.samples, mode="clip")
-            if minus:
-                np.subtract(self.samples, self.minus_samples, out=self.samples)
-            self.samples.sort(axis=-1)
-        _mean(self.middle, self.level_raw)
+            np.take(padded.ravel(), self.index, out=self.samples, mode="clip")
+        if minus:
+            np.subtract(self.samples, self.minus_samples, out=self.samples)
+        if lattice:
+            np.add(self.samples, self.dither, out=self.samples)
+        self.samples.sort(axis=-1)
+        if lattice:
+            # the level from the integers as read (in the same order: the dither is
+            # under half a step), not the histogram's (a tile of zeros with a few
+            # ones would read 0.02)
+            np.rint(self.samples, out=self.rounded)
+            values = self.rounded
+        else:
+            values = self.samples
+        _mean(values[..., m // 4: m - m // 4], self.level_raw)
         if dark_side is not None and np.any(dark_side):
-            dark = self.samples[dark_side]
+            dark = values[dark_side]
             self.level_raw[dark_side] = dark[:, m // 16: 3 * m // 8].mean(axis=-1)
         self._smooth(self.level_raw, level)
         np.subtract(self.middle, self.level_raw[..., None], out=self.deviation)
         np.abs(self.deviation, out=self.deviation)
         _mean(self.deviation, self.raw)
         np.multiply(self.raw, 1.0 / _MEAN_ABS_IN_IQR, out=self.raw)
+        estimates = [self.raw]
         if upper:
             np.subtract(self.samples[..., self._upper], self.level_raw, out=self.upper)
-            np.maximum(self.raw, self.upper, out=self.raw)
             trimmed = self.samples[..., self._trim:m - self._trim]
-            _mean(trimmed, self.upper)
-            np.subtract(trimmed, self.upper[..., None], out=self.trim_dev)
+            _mean(trimmed, self.moment2)
+            np.subtract(trimmed, self.moment2[..., None], out=self.trim_dev)
             np.multiply(self.trim_dev, self.trim_dev, out=self.trim_pow)
             _mean(self.trim_pow, self.moment2)
             np.multiply(self.trim_pow, self.trim_dev, out=self.trim_pow)
             _mean(self.trim_pow, self.moment3)  # for skewness()
-            np.sqrt(self.moment2, out=self.upper)
-            np.multiply(self.upper, 1.0 / self._trimmed_std, out=self.upper)
-            np.maximum(self.raw, self.upper, out=self.raw)
+            if lattice:
+                np.subtract(self.moment2, 1.0 / 12.0, out=self.moment2)
+                np.maximum(self.moment2, 0.0, out=self.moment2)
+            np.sqrt(self.moment2, out=self.trimmed)
+            np.multiply(self.trimmed, 1.0 / self._trimmed_std, out=self.trimmed)
+            estimates += [self.upper, self.trimmed]
         if dark_side is not None and np.any(dark_side):
-            self._dark_side(dark_side)
-        np.maximum(self.raw, floor, out=self.raw)
+            spread = self._dark_side(dark_side)
+            for estimate in estimates:
+                estimate[dark_side] = spread
+        if lattice:
+            # the dithered samples are the integers plus an independent uniform of
+            # variance 1/12: the integers' own spread is what remains (the trimmed
+            # variance has had it taken off already)
+            for estimate in estimates[:2]:
+                np.multiply(estimate, estimate, out=estimate)
+                np.subtract(estimate, 1.0 / 12.0, out=estimate)
+                np.maximum(estimate, 0.0, out=estimate)
+                np.sqrt(estimate, out=estimate)
+        # each estimate smoothed on its own, then the largest: the largest of
+        # three noisy estimates of one tile would be biased upwards (6 % for
+        # Gaussian noise), that of their 3x3 medians much less
+
         self._smooth(self.raw, noise)
+        for estimate in estimates[1:]:
+            np.maximum(self.raw, estimate, out=self.raw)   # per tile, for skewness()
+            self._smooth(estimate, self.smoothed)
+            np.maximum(noise, self.smoothed, out=noise)
+        np.maximum(noise, floor, out=noise)
 
     def sample_minus(self, minus: np.ndarray) -> None:
         """Read ``minus`` (float32, padded like the frames) at the sampled pixels, for
@@ -184,12 +229,12 @@ class BackgroundGrid:
         image fixed for a frame, which a worker thread can make ahead)."""
         np.take(minus.ravel(), self.index, out=self.minus_samples, mode="clip")
 
-    def _dark_side(self, dark_side: np.ndarray) -> None:
+    def _dark_side(self, dark_side: np.ndarray) -> np.ndarray:
         """Noise of the marked tiles from their 10th-30th percentile samples."""
         m = self.samples.shape[-1]
         dark = self.samples[dark_side]
         spread = dark[:, int(round(0.3 * (m - 1)))] - dark[:, int(round(0.1 * (m - 1)))]
-        self.raw[dark_side] = spread / _DECILES_10_30
+        return spread / _DECILES_10_30
 
     def skewness(self, star_free_sigma: float = 5.0, min_fraction: float = 0.5) -> float:
         """Median skewness of the star-free tiles of the last :meth:`stats` call (``upper``).

@@ -43,10 +43,12 @@ handled, sigma 3.5 px):
    pixel-integrated PSF for the centre (no pixel-phase bias; saturated
    pixels censored; tracker.detect.fit), flux, SNR and shape
    (tracker.detect.windowed). Spots much narrower than the PSF, or rougher
-   at the pixel scale than any image of the sky (cosmic-ray clusters that
-   survived steps 3-4), are rejected and counted; so are saturated spots
-   holding less light than the PSF's area times their clipped peak (judged
-   at any SNR: on glare a track's SNR is low, its shape still plain). With
+   at the pixel scale than a star of their flux (cosmic-ray clusters that
+   survived steps 3-4; tracker.detect.roughness), are rejected and counted
+   (fainter ones when narrower than a star beyond their noise); so are
+   saturated spots holding less light than the PSF's area times their
+   clipped peak (judged at any SNR: on glare a track's SNR is low, its
+   shape still plain). With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
    every centre instead, from the frame as delivered; the shape tests
@@ -76,6 +78,7 @@ used. Stars are ordered most significant first (by SNR); beyond
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 
 import cv2
 import numpy as np
@@ -98,6 +101,7 @@ from tracker.detect.psf import (
     pixel_tensor_to_optics,
 )
 from tracker.detect.result import Detections, StarFlag
+from tracker.detect.roughness import StarRoughness
 from tracker.detect.sigma_steps import SigmaSteps
 from tracker.detect.significance import shot_noise_snr
 from tracker.detect.slabs import SlabRunner
@@ -105,7 +109,6 @@ from tracker.detect.stars import StarTable
 from tracker.detect.surroundings import Surroundings, sky_noise_model
 from tracker.detect.threshold import NoiseTail, gaussian_peak_threshold, skewed_threshold
 from tracker.detect.windowed import WindowedCentroider
-from tracker.normal import pixel_fractions
 from tracker.timing import StageTimer
 
 __all__ = ["DefaultDetector", "effective_sigma", "PSF_STAR_DTYPE"]
@@ -124,7 +127,8 @@ _PSF_ROUND = 0.5               # a PSF candidate's 5x5 light is rounder than thi
 _PLATEAU_STARS = 64            # saturated stars centred on their clipped core, at most
 _PLATEAU_FILL = 0.7            # ... when its radius is this much of the window's
 _CHUNK = 128                   # stars centroided at a time (bounds the window buffers)
-_ROUGH_REFERENCE_SNR = 30.0    # spots this bright set the frame's roughness reference
+_ROUGH_REFERENCE_SNR = 30.0    # spots this bright set the frame's roughness scale
+_ROUGH_SPREADS = 4.0           # rougher than a star by this many of its noise's spreads
 _STAR_WIDTH = math.log(1.25)   # ... if their width is within 25 % of the PSF's
 _STAR_ELLIPTICITY = 0.2        # ... and they are round
 _TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
@@ -135,8 +139,9 @@ _NARROW_SNR = 50.0             # ... at this SNR is a particle's charge, not a s
 _SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
 _CLIPPED_AREA = 0.6           # a saturated spot's flux/peak under this x the PSF's is sharp
 _CLIP_SIGMAS = 4.0             # full scale this many pixel noises above the background
+_WIDTH_SPREADS = 4.0           # below sharp_min_snr: narrower than a star by this many spreads
 _REMNANT_WIDTH = 0.85          # a spot this narrow and ...
-_REMNANT_ROUGH = 3.0           # ... this rough (x a point source's) is a track's remnant
+_REMNANT_ROUGH = 3.0           # ... this rough (x a star's of its flux) is a track's remnant
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
 _SHARPEST_RING = 0.5 * psf_ring(SIGMA_MIN_PX)
@@ -185,25 +190,6 @@ def _kernel_half(psf_sigma_px: float) -> int:
     of a 2.5-sigma one (5x5 instead of 7x7 at sigma 1.2).
     """
     return max(1, int(round(2.0 * effective_sigma(psf_sigma_px))))
-
-
-def _point_roughness(centroider: WindowedCentroider, sigma_px: float) -> float:
-    """The windowed roughness of a noise-free pixel-integrated Gaussian star, px^-4.
-
-    Averaged over centres on a pixel's centre, edge and corner; the
-    reference a spot's roughness is compared with.
-    """
-    r = centroider.radius
-    edges = np.arange(-r, r + 2, dtype=np.float64) - 0.5
-    values = []
-    for phase in ((0.0, 0.0), (0.5, 0.0), (0.5, 0.5)):
-        fx, _ = pixel_fractions(edges - phase[0], sigma_px)
-        fy, _ = pixel_fractions(edges - phase[1], sigma_px)
-        s = np.outer(fy, fx)
-        lap = (4.0 * s[1:-1, 1:-1] - s[:-2, 1:-1] - s[2:, 1:-1] - s[1:-1, :-2]
-               - s[1:-1, 2:])
-        values.append(float(np.sum(lap * lap) / np.sum(s * s)))
-    return float(np.mean(values))
 
 
 def _reflected_noise_gain(kernel: np.ndarray, rows: int,
@@ -329,7 +315,8 @@ class DefaultDetector:
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
                          "sharp_spots": 0, "masked": 0, "candidates": 0, "left_out": 0}
         self._sigma_step = None
-        self.steps = SigmaSteps(_sigma_step_of(SIGMA_MIN_PX), _sigma_step_of(SIGMA_MAX_PX), 5,
+        self.steps = SigmaSteps(_sigma_step_of(SIGMA_MIN_PX), _sigma_step_of(SIGMA_MAX_PX),
+                                4 + len(fields(StarRoughness)),
                                 _kernel_half(SIGMA_MAX_PX))
         self._configure(cfg.psf_sigma_px)
 
@@ -342,7 +329,7 @@ class DefaultDetector:
         were built for: a PSF wandering by a few per cent from frame to
         frame leaves the kernels, windows and their buffers as they are.
         The constants that take some arithmetic (thresholds, contrasts, the
-        point source's roughness, the filter's gain at the borders) come
+        roughness of a star and its spread, the filter's gain at the borders) come
         from ``self.steps``, computed once per step.
         """
         position = math.log(sigma_px) / _SIGMA_STEP
@@ -368,15 +355,18 @@ class DefaultDetector:
             self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
         self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
         self.surroundings.configure(int(math.ceil(_SKY_RING_SIGMAS * sigma)))
-        (self.filter_gain, self.peak_threshold, self.impulse_contrast, self.impulse_ring,
-         self.point_roughness), self.edge_gain = self.steps.get(
+        scalars, self.edge_gain = self.steps.get(
             step, lambda: self._step_constants(sigma_px, kernel))
+        self.filter_gain, self.peak_threshold, self.impulse_contrast, self.impulse_ring = \
+            scalars[:4]
+        self.star_roughness = StarRoughness.from_values(scalars[4:])
 
     def _step_constants(self, sigma_px: float,
                         kernel: np.ndarray) -> tuple[tuple, tuple[np.ndarray, np.ndarray]]:
         """The PSF's constants for ``_configure`` (PSF sigma ``sigma_px``, matched filter
         ``kernel``; the centroider configured for it): (filter gain, Gaussian peak
-        threshold, impulse contrast, impulse ring, point roughness), (edge gains)."""
+        threshold, impulse contrast, impulse ring, then the StarRoughness values),
+        (edge gains)."""
         # filtered / pixel noise for white noise: sqrt of the 2-D kernel's sum of squares
         filter_gain = float(np.sum(kernel ** 2))
         peak_threshold = gaussian_peak_threshold(
@@ -388,8 +378,9 @@ class DefaultDetector:
         # a hot pixel's neighbours hold noise; those of a star a tenth sharper than the
         # PSF, at its sharpest phase, more than twice this
         impulse_ring = 0.5 * psf_ring(_IMPULSE_PSF_MARGIN * sigma_px)
-        point_roughness = _point_roughness(self.centroider, sigma_px)
-        return ((filter_gain, peak_threshold, impulse_contrast, impulse_ring, point_roughness),
+        roughness = StarRoughness.of(self.centroider.radius, sigma_px)
+        return ((filter_gain, peak_threshold, impulse_contrast, impulse_ring,
+                 *roughness.values()),
                 _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols))
 
     def _noise_f_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -803,11 +794,11 @@ class DefaultDetector:
         width = narrowest / (0.5 * self.expected_size)     # 1 for a star of this PSF
         star_like = judged & spot & (np.abs(np.log(np.maximum(width, 1e-6))) < _STAR_WIDTH) & (
             v["ellipticity"] < _STAR_ELLIPTICITY)
-        rough = v["rough"] / self._roughness_reference(v, star_like)
+        rougher = self._rougher_than_a_star(v, noise, star_like)
         # a line narrower than the PSF (a track; a trailed star keeps the PSF's width), or
         # a narrow spot rough at the pixel scale (a track's remnant)
         track = ((width < _TRACK_WIDTH) & (v["ellipticity"] > _TRACK_ELLIPTICITY)) | (
-            (width < _REMNANT_WIDTH) & (rough > _REMNANT_ROUGH))
+            (width < _REMNANT_WIDTH) & rougher(_REMNANT_ROUGH))
         if self.psf.stars:
             # against a PSF measured on this frame: a spot far more elongated than its
             # stars is a particle's track, whatever its width (a charge cloud diffused
@@ -829,7 +820,16 @@ class DefaultDetector:
         track |= clipped & (v["flux"] < _CLIPPED_AREA * 2.0 * math.pi * self.expected_size
                               * v["peak"])
         narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
-        sharp = judged & (narrow | (rough > self.cfg.rough_ratio))
+        sharp = judged & (narrow | rougher(self.cfg.rough_ratio))
+        # Fainter, a spot's width is known to about sqrt(2) / SNR of a star's (the spread
+        # of a second moment under the matched Gaussian weight, from the weighted noise,
+        # whatever the spot's own width): one narrower than ``sharp_size_ratio``, and
+        # than a star by more than _WIDTH_SPREADS of that spread, is a hot pixel or a
+        # particle's hit the impulse stage left (its noisy 3x3 median or neighbours
+        # made it look like a star's light)
+        if self.speckle_fit is None:
+            sharp |= spot & (width < self.cfg.sharp_size_ratio) & (
+                (1.0 - width) * known > _WIDTH_SPREADS * math.sqrt(2.0))
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
@@ -868,22 +868,36 @@ class DefaultDetector:
         s["flags"][:count] = flags
         return count
 
-    def _roughness_reference(self, v: dict, star_like: np.ndarray) -> float:
-        """What a star's pixel-scale roughness is in this frame (tracker.detect.windowed).
+    def _rougher_than_a_star(self, v: dict, noise: np.ndarray, star_like: np.ndarray):
+        """A test of the spots' pixel-scale roughness (tracker.detect.windowed) against a
+        star's of the same flux on the same noise (tracker.detect.roughness).
 
-        A point source's under the frame's PSF, or, if higher, the median of
-        the frame's bright spots that look like its stars (``star_like``:
-        width within 25 % of the PSF's, round): noise that scales with the
-        light (speckle, a fraction of a photon per pixel) roughens every star
-        alike, and a star is not rejected for it, while cosmic-ray clusters,
-        narrower or elongated, do not set the reference. Spots far rougher
-        than it (clusters of hits, touching impulses) are rejected.
+        ``rougher(k)`` is true of a spot rougher than k times what such a star
+        reads, and by more than ``_ROUGH_SPREADS`` of its noise's spread (a
+        faint star's roughness is mostly its own shot noise's and the
+        background's, and spreads by a third of itself at SNR 35). Both are
+        scaled by the median over the frame's bright spots that look like its
+        stars (``star_like``: width within 25 % of the PSF's, round) of their
+        roughness over a star's, if above one: noise that scales with the
+        light (speckle, a fraction of a photon per pixel) or optics sharper
+        at the core than a Gaussian roughen every star alike, and a star is
+        not rejected for it, while cosmic-ray clusters, narrower or
+        elongated, do not set the scale.
         """
-        reference = self.point_roughness
+        model = self.star_roughness
+        flux = v["flux"]
+        expected = model.expected(flux)
+        margin = expected + _ROUGH_SPREADS * model.spread(flux, noise)
         bright = star_like & (v["snr"] >= _ROUGH_REFERENCE_SNR)
+        scale = 1.0
         if np.count_nonzero(bright) >= 5:
-            reference = max(reference, median(v["rough"][bright]))
-        return reference
+            scale = max(scale, median(v["rough"][bright] / expected[bright]))
+        rough = v["rough"] / scale
+
+        def rougher(k: float) -> np.ndarray:
+            return (rough > k * expected) & (rough > margin)
+
+        return rougher
 
     def _broad(self, v: dict, sharp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(EXTENDED, body): flux/peak above ``extended_ratio`` / ``body_ratio`` x the median.

@@ -14,12 +14,13 @@ impulse also when its eight neighbours hold less than half the light a
 star of that PSF puts there (:func:`psf_ring`): the contrast alone cannot
 tell a hot pixel from a sharp star whose light falls on a pixel's corner.
 
-Impulses are counted: a pixel with no impulse among its 8 neighbours is a
-hot pixel (or a one-pixel hit); a group of touching impulse pixels is one
-cosmic-ray hit, counted at its first pixel in raster order (one with no
-impulse to its left or in the row above; a group shaped like a "U" counts
-twice). Tracks wider than one pixel survive the 3x3 median and are left to
-the detector's shape test.
+Impulses are counted. Those of added charge (above their median) are
+split: one with no such impulse among its 8 neighbours is a hot pixel (or a
+one-pixel hit); a group of touching ones is one cosmic-ray hit, counted at
+its first pixel in raster order (one with none to its left or in the row
+above; a group shaped like a "U" counts twice). Dark impulses (dead pixels,
+pepper) are neither, and never part of a track. Tracks wider than one pixel
+survive the 3x3 median and are left to the detector's shape test.
 
 The test runs on the few pixels that differ from their median by more than
 ``k_sigma`` times the local noise, gathered into fixed buffers of
@@ -152,6 +153,7 @@ class ImpulseFilter:
                                         for dx in (-1, 0, 1)], np.intp)
         self.window_values = np.zeros((self.capacity, 9), dtype)
         self.replaced = np.zeros(self.capacity, np.bool_)
+        self.charge = np.zeros(self.capacity, np.bool_)   # replaced, and above its median
         self.ring = np.zeros(self.capacity, np.float32)
         self.lone = np.zeros(self.capacity, np.bool_)
         self._dense = False
@@ -268,7 +270,7 @@ class ImpulseFilter:
             if step:
                 n = self._grow(n, work_pad, bg_pad, limit_pad)
             self._retest(n, work_pad, min(contrast, self.contrast), ring)
-        self._count(n, self.index[:n], self.replaced[:n])
+        self._count(n, self.index[:n], self.replaced[:n], self.charge[:n])
         if mirror_pad is not None:
             self._mirror(self.index[:n], self.reads[:n], work_pad, mirror_pad)
         self._clear_tracks(n, work_pad, bg_pad, limit_pad, mirror_pad)
@@ -349,8 +351,11 @@ class ImpulseFilter:
         return nb
 
     def _track_pixels(self, n: int) -> np.ndarray:
-        """Mask (a view of ``flags``) of the replaced candidates with a replaced neighbour."""
-        replaced = self.replaced[:n]
+        """Mask (a view of ``flags``) of the candidates replaced for added charge (above
+        their median) with such a neighbour. A particle adds charge: a dark impulse
+        beside a bright one (on a star's steep edge, where the 3x3 median is lifted
+        on one side and lowered on the other) is no track."""
+        replaced = self.charge[:n]
         nb = self._neighbour_marks(n, self.index[:n], replaced)
         np.max(nb, axis=1, out=self.any_after[:n])
         track = self.flags[:n]
@@ -388,6 +393,9 @@ class ImpulseFilter:
                 np.greater(t2, lim, out=self.tmp_flags[:n])      # above its median by the limit
                 np.logical_and(lone, self.tmp_flags[:n], out=lone)
                 np.logical_or(imp, lone, out=imp)
+            np.greater(w, m, out=self.tmp_flags[:n])     # (a replaced pixel's w is m)
+            np.logical_and(self.tmp_flags[:n], imp, out=self.tmp_flags[:n])
+            np.logical_or(self.charge[:n], self.tmp_flags[:n], out=self.charge[:n])
             np.copyto(w, m, where=imp)
             np.put(flat, idx, w, mode="clip")
             np.logical_or(replaced, imp, out=replaced)
@@ -431,6 +439,7 @@ class ImpulseFilter:
         np.multiply(self.reads[:k], _GROW_LIMIT, out=self.values[3][new], casting="unsafe")
         np.take(bg_pad.ravel(), new_pixels, out=self.values[2][new], mode="clip")
         self.replaced[new] = False
+        self.charge[new] = False
         return n + k
 
     def _first_cut(self, work: np.ndarray, limit: np.ndarray, a: int, b: int) -> None:
@@ -449,19 +458,23 @@ class ImpulseFilter:
             np.copyto(dst, reads)
         np.take(bg_pad.ravel(), idx, out=b, mode="clip")
         imp = _impulse_test(w, m, b, lim, self.contrast, self.sparse, n)
+        np.greater(w, m, out=self.charge[:n])
+        np.logical_and(self.charge[:n], imp, out=self.charge[:n])
         np.copyto(w, m, where=imp)
         np.put(flat, idx, w, mode="clip")
         np.copyto(self.replaced[:n], imp)
         self._n = n
-        self._count(n, idx, imp)
+        self._count(n, idx, imp, self.charge[:n])
 
-    def _count(self, n: int, idx: np.ndarray, imp: np.ndarray) -> None:
-        """Split the impulses into hot pixels and cosmic-ray groups."""
+    def _count(self, n: int, idx: np.ndarray, imp: np.ndarray, charge: np.ndarray) -> None:
+        """Count the impulses; split those of added charge into hot pixels and cosmic-ray
+        groups (a dark impulse, a dead pixel or pepper, is neither)."""
         counts = self.counts
-        total = int(np.count_nonzero(imp))
-        counts["impulse_pixels"] = total
-        if total == 0:
+        counts["impulse_pixels"] = int(np.count_nonzero(imp))
+        counts["hot_pixels"] = counts["cosmic_rays"] = 0
+        if not np.any(charge):
             return
+        imp = charge
         nb = self._neighbour_marks(n, idx, imp)
         before, after = self.any_before[:n], self.any_after[:n]
         np.max(nb[:, :_BEFORE], axis=1, out=before)

@@ -2,7 +2,7 @@
 
 The default detector uses PSF sigmas in steps of 3 % (tracker.detect.default)
 and derives a handful of constants from each: the false-alarm threshold of
-its matched filter, the impulse contrasts, a point source's roughness, the
+its matched filter, the impulse contrasts, a star's roughness and its spread, the
 filter's noise gain at the frame's borders. Each takes a fraction of a
 millisecond of small numpy arithmetic; a PSF that changes from frame to
 frame (a folder of frames from different lenses, a focus run) would pay it
