@@ -380,14 +380,15 @@ class StampDetector:
         gain 2) of stamps ``grid`` (m, side, side) from (x, y) px off their centres."""
         inv = -0.5 / self.expected_size
         pos = np.stack((x, y))                                   # (2, m)
+        weight = np.empty((len(x), 2, len(self.stamp_axis)))     # g_y and g_y e_y by row
         for _ in range(self.cfg.centroid_iterations):
-            e = self.stamp_axis[None, None, :] - pos[:, :, None]  # (2, m, side)
+            e = self.stamp_axis - pos[:, :, None]                # (2, m, side): x, y
             g = np.exp(inv * e * e)
-            cols = np.einsum("nij,ni->nj", grid, g[1]) * g[0]     # weighted along y
-            rows = np.einsum("nij,nj->ni", grid, g[0]) * g[1]     # weighted along x
-            total = cols.sum(axis=1)
-            step = np.stack((np.einsum("ij,ij->i", cols, e[0]), np.einsum("ij,ij->i", rows, e[1])))
-            step *= 2.0 / np.where(total > 0, total, np.inf)      # no light: no step
+            weight[:, 0], weight[:, 1] = g[1], g[1] * e[1]
+            cols = np.einsum("nij,nai->naj", grid, weight)       # (m, 2, side)
+            sums = np.einsum("naj,nj->an", cols, g[0])           # (total, sum g e_y)
+            step = np.stack((np.einsum("nj,nj->n", cols[:, 0], g[0] * e[0]), sums[1]))
+            step *= 2.0 / np.where(sums[0] > 0, sums[0], np.inf)   # no light: no step
             moved = np.clip(pos + step, -_MAX_SHIFT_PX, _MAX_SHIFT_PX)
             done = np.abs(moved - pos).max() < self.cfg.centroid_tolerance_px
             pos = moved
