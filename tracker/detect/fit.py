@@ -45,6 +45,8 @@ temporaries (a few kB).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from tracker.normal import pixel_fractions
@@ -86,8 +88,12 @@ class PixelGaussianFit:
         self._pos = np.zeros((2, self.chunk), np.float64)
         self.side = 0
         self.sigma = 0.0
-        self._table = np.zeros((0, 4))
-        self._nodes = np.zeros(0)
+        # the table (module docstring) for the largest window: a smaller one is a view
+        nodes = 2 * int(math.ceil((self.max_side // 2 + _TABLE_REACH_PX) * _TABLE_PER_PX)) + 1
+        self._table_buffer = np.zeros((nodes, 4), np.float64)
+        self._nodes_buffer = np.zeros(self.max_side, np.float64)
+        self._table = self._table_buffer[:0]
+        self._nodes = self._nodes_buffer[:0]
         self._last = 0.0
 
     def configure(self, radius: int, sigma: float) -> None:
@@ -102,12 +108,13 @@ class PixelGaussianFit:
         t = np.arange(-reach, reach + 1.5 / _TABLE_PER_PX, 1.0 / _TABLE_PER_PX)
         frac, dfrac = pixel_fractions(np.stack((t - 0.5, t + 0.5), axis=1), self.sigma)
         values = np.concatenate((frac, dfrac), axis=1)                 # (K, 2)
-        self._table = np.empty((len(t) - 1, 4))
+        self._table = self._table_buffer[:len(t) - 1]
         self._table[:, 0::2] = values[:-1]
         self._table[:, 1::2] = np.diff(values, axis=0)
         self._last = float(len(t) - 2)
         # the pixels' centres in table units from the table's start
-        self._nodes = (np.arange(-radius, radius + 1, dtype=np.float64) + reach) * _TABLE_PER_PX
+        self._nodes = self._nodes_buffer[:self.side]
+        self._nodes[:] = (np.arange(-radius, radius + 1, dtype=np.float64) + reach) * _TABLE_PER_PX
 
     def _views(self, m: int) -> dict:
         side = self.side
