@@ -5,7 +5,8 @@ windows, all of one side ``cell``). :class:`StampDetector` works on the
 ``cells`` windows of a frame as one (cells, cell, cell) stack gathered by
 fancy indexing, with no Python loop over windows or stars:
 
-1. ``stack``: the windows copied out of the frame.
+1. ``stack``: the windows copied out of the frame (one gather from a view
+   of all its windows).
 2. ``background``: each window's sky level and pixel noise from its border
    ring (``RING_PX`` wide): the median, and the RMS of the pixels within 3
    sigma of it (sigma from the interquartile range; the RMS corrected
@@ -117,9 +118,6 @@ class StampDetector:
                            else float(cfg.saturation_adu))
         self.max_candidates = int(max_candidates)
         n, c = self.cells, self.cell
-        dy, dx = np.mgrid[0:c, 0:c]
-        self.offsets = (dy * self.frame_shape[1] + dx).astype(np.intp)     # (c, c)
-        self.index = np.zeros((n, c, c), np.intp)
         self.raw = np.zeros((n, c, c), dtype)
         self.stack = np.zeros((n, c, c), np.float32)
         self.filt = np.zeros((n * c, c), np.float32)
@@ -204,9 +202,14 @@ class StampDetector:
         return self.table.result(count, None, self.counters, timer.ms, psf)
 
     def _gather(self, image: np.ndarray, origins: np.ndarray) -> None:
-        corner = origins[:, 1] * self.frame_shape[1] + origins[:, 0]
-        np.add(corner[:, None, None], self.offsets[None], out=self.index)
-        np.take(np.ascontiguousarray(image).reshape(-1), self.index, out=self.raw)
+        # every window of the frame as a view (rows, columns, cell, cell) of its pixels,
+        # indexed by the windows' corners: one gather, no index arrays
+        image = np.ascontiguousarray(image)
+        c = self.cell
+        step = image.strides
+        windows = np.ndarray((image.shape[0] - c + 1, image.shape[1] - c + 1, c, c),
+                             image.dtype, image, 0, step + step)
+        self.raw[...] = windows[origins[:, 1], origins[:, 0]]
 
     def _background(self) -> None:
         """Each window's level and pixel noise from its border ring (module docstring)."""
