@@ -480,6 +480,22 @@ class Solver:
         pinhole[:, 1] = (xy[:, 1] - camera.cy) / camera.f_px
         return pixel_jacobian(camera, pinhole) @ (self._rate * exposure_s)
 
+    def max_smear_px(self, t_ns: int, exposure_s: float) -> float | None:
+        """An upper bound of :meth:`smear_px` over the whole frame, px (None without a rate).
+
+        |J omega T| <= |J|_F |omega| T, and every entry of the pinhole J grows
+        with |u| and |w|: |J|_F at the frame's farthest |u| and |w| bounds it
+        everywhere (a few per cent of distortion below the bound's slack).
+        """
+        if not self._can_track(t_ns) or self._rate is None:
+            return None
+        camera = self.lens_camera()
+        u = max(camera.cx + 0.5, camera.width - 0.5 - camera.cx) / camera.f_px
+        w = max(camera.cy + 0.5, camera.height - 0.5 - camera.cy) / camera.f_px
+        norm = math.sqrt(2.0 * (u * w) ** 2 + (1.0 + u * u) ** 2 + (1.0 + w * w) ** 2
+                         + u * u + w * w)
+        return camera.f_px * norm * float(np.linalg.norm(self._rate)) * exposure_s
+
     def _can_track(self, t_ns: int) -> bool:
         if self._last_R is None or self._last_t is None:
             return False
