@@ -92,6 +92,15 @@ _SAME_STAR_PX = 1.0            # one star's detections in overlapping windows li
 _NEIGHBOURS = np.ones((3, 3), np.uint8)
 
 
+def _window_view(image: np.ndarray, size: int) -> np.ndarray:
+    """Every ``size`` x ``size`` window of ``image`` as one read-only view (rows - size + 1,
+    cols - size + 1, size, size), indexed by the window's top-left pixel (no copy)."""
+    image = np.ascontiguousarray(image)
+    step = image.strides
+    return np.ndarray((image.shape[0] - size + 1, image.shape[1] - size + 1, size, size),
+                      image.dtype, image, 0, step + step)
+
+
 def _effective_sigma(sigma_px: float) -> float:
     """The pixel-integrated PSF's sigma, px (tracker.detect.default.effective_sigma)."""
     return math.sqrt(sigma_px ** 2 + 1.0 / 12.0)
@@ -160,8 +169,6 @@ class StampDetector:
         self.radius = int(math.ceil(3.0 * sigma))
         self.fit.configure(self.radius, sigma_px)
         r = self.radius
-        dy, dx = np.mgrid[-r - 1:r + 2, -r - 1:r + 2]   # the stamp and a ring for its median
-        self.wide_offsets = (dy * self.frame_shape[1] + dx).astype(np.intp).ravel()
         self.stamp_axis = np.arange(-r, r + 1, dtype=np.float64)
         side = 2 * r + 1
         centre = (side * side) // 2
@@ -202,14 +209,7 @@ class StampDetector:
         return self.table.result(count, None, self.counters, timer.ms, psf)
 
     def _gather(self, image: np.ndarray, origins: np.ndarray) -> None:
-        # every window of the frame as a view (rows, columns, cell, cell) of its pixels,
-        # indexed by the windows' corners: one gather, no index arrays
-        image = np.ascontiguousarray(image)
-        c = self.cell
-        step = image.strides
-        windows = np.ndarray((image.shape[0] - c + 1, image.shape[1] - c + 1, c, c),
-                             image.dtype, image, 0, step + step)
-        self.raw[...] = windows[origins[:, 1], origins[:, 0]]
+        self.raw[...] = _window_view(image, self.cell)[origins[:, 1], origins[:, 0]]
 
     def _background(self) -> None:
         """Each window's level and pixel noise from its border ring (module docstring)."""
@@ -270,16 +270,16 @@ class StampDetector:
         m = len(win)
         side = 2 * self.radius + 1
         big = side + 2
-        centre = (origins[win, 1] + py) * self.frame_shape[1] + origins[win, 0] + px
-        flat = np.ascontiguousarray(image).reshape(-1)
-        wide = flat[centre[:, None] + self.wide_offsets[None, :]].astype(np.float32)
+        corner = self.radius + 1
+        wide = _window_view(image, big)[origins[win, 1] + py - corner,
+                                        origins[win, 0] + px - corner].astype(np.float32)
         keep = np.ones(m, bool)
         if m == 0:
             return np.zeros((0, side * side)), keep
         # the median of each stamp's own pixels: the outer ring (only read by the median)
         # keeps the stamps apart in the tall image OpenCV filters
         median = cv2.medianBlur(wide.reshape(m * big, big), 3).reshape(m, big, big)
-        stamps = wide.reshape(m, big, big)[:, 1:-1, 1:-1].astype(np.float64)
+        stamps = wide[:, 1:-1, 1:-1].astype(np.float64)
         median = median[:, 1:-1, 1:-1].reshape(m, -1)
         stamps = stamps.reshape(m, -1)
         level = self.level[win].astype(np.float64)[:, None]
