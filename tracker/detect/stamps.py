@@ -366,12 +366,14 @@ class StampDetector:
         count = len(keep)
         s = self.table.stars
         s["x"][:count], s["y"][:count] = fx[keep], fy[keep]
-        s["flux"][:count] = signal[keep].sum(axis=1)
-        s["peak"][:count] = signal[keep][:, self.centre9].max(axis=1)
+        kept = signal[keep]
+        s["flux"][:count] = kept.sum(axis=1)
+        s["peak"][:count] = kept[:, self.centre9].max(axis=1)
         s["snr"][:count] = snr[keep]
-        s["npix"][:count] = np.count_nonzero(signal[keep] > 3.0 * noise[keep, None], axis=1)
+        s["npix"][:count] = np.count_nonzero(kept > 3.0 * noise[keep, None], axis=1)
         flags = np.zeros(count, np.uint16)
-        flags[raw[keep][:, self.centre9].max(axis=1) >= self.saturation] |= StarFlag.SATURATED
+        flags[raw[keep[:, None], self.centre9].max(axis=1) >= self.saturation] |= \
+            StarFlag.SATURATED
         flags[(ellipticity[keep] > self.cfg.elongation_max) & judged[keep]] |= StarFlag.ELONGATED
         flags[blended[keep]] |= StarFlag.BLENDED
         s["flags"][:count] = flags
