@@ -279,6 +279,9 @@ class Pipeline:
         """``stars`` with trailed ones re-centred and merged (module docstring), or as given."""
         if self._solver is None or len(stars) == 0 or image.ndim != 2:
             return stars
+        longest = self._solver.max_smear_px(t_ns, exposure_s)
+        if longest is None or longest < self._trail.min_length:
+            return stars                  # no star of the frame trails far enough
         xy = np.stack((stars["x"], stars["y"]), axis=1)
         smear = self._solver.smear_px(xy, t_ns, exposure_s)
         if smear is None or not np.any(np.hypot(smear[:, 0], smear[:, 1])

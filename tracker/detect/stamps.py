@@ -5,7 +5,8 @@ windows, all of one side ``cell``). :class:`StampDetector` works on the
 ``cells`` windows of a frame as one (cells, cell, cell) stack gathered by
 fancy indexing, with no Python loop over windows or stars:
 
-1. ``stack``: the windows copied out of the frame.
+1. ``stack``: the windows copied out of the frame (one gather from a view
+   of all its windows).
 2. ``background``: each window's sky level and pixel noise from its border
    ring (``RING_PX`` wide): the median, and the RMS of the pixels within 3
    sigma of it (sigma from the interquartile range; the RMS corrected
@@ -91,6 +92,15 @@ _SAME_STAR_PX = 1.0            # one star's detections in overlapping windows li
 _NEIGHBOURS = np.ones((3, 3), np.uint8)
 
 
+def _window_view(image: np.ndarray, size: int) -> np.ndarray:
+    """Every ``size`` x ``size`` window of ``image`` as one read-only view (rows - size + 1,
+    cols - size + 1, size, size), indexed by the window's top-left pixel (no copy)."""
+    image = np.ascontiguousarray(image)
+    step = image.strides
+    return np.ndarray((image.shape[0] - size + 1, image.shape[1] - size + 1, size, size),
+                      image.dtype, image, 0, step + step)
+
+
 def _effective_sigma(sigma_px: float) -> float:
     """The pixel-integrated PSF's sigma, px (tracker.detect.default.effective_sigma)."""
     return math.sqrt(sigma_px ** 2 + 1.0 / 12.0)
@@ -117,9 +127,6 @@ class StampDetector:
                            else float(cfg.saturation_adu))
         self.max_candidates = int(max_candidates)
         n, c = self.cells, self.cell
-        dy, dx = np.mgrid[0:c, 0:c]
-        self.offsets = (dy * self.frame_shape[1] + dx).astype(np.intp)     # (c, c)
-        self.index = np.zeros((n, c, c), np.intp)
         self.raw = np.zeros((n, c, c), dtype)
         self.stack = np.zeros((n, c, c), np.float32)
         self.filt = np.zeros((n * c, c), np.float32)
@@ -162,8 +169,6 @@ class StampDetector:
         self.radius = int(math.ceil(3.0 * sigma))
         self.fit.configure(self.radius, sigma_px)
         r = self.radius
-        dy, dx = np.mgrid[-r - 1:r + 2, -r - 1:r + 2]   # the stamp and a ring for its median
-        self.wide_offsets = (dy * self.frame_shape[1] + dx).astype(np.intp).ravel()
         self.stamp_axis = np.arange(-r, r + 1, dtype=np.float64)
         side = 2 * r + 1
         centre = (side * side) // 2
@@ -204,9 +209,7 @@ class StampDetector:
         return self.table.result(count, None, self.counters, timer.ms, psf)
 
     def _gather(self, image: np.ndarray, origins: np.ndarray) -> None:
-        corner = origins[:, 1] * self.frame_shape[1] + origins[:, 0]
-        np.add(corner[:, None, None], self.offsets[None], out=self.index)
-        np.take(np.ascontiguousarray(image).reshape(-1), self.index, out=self.raw)
+        self.raw[...] = _window_view(image, self.cell)[origins[:, 1], origins[:, 0]]
 
     def _background(self) -> None:
         """Each window's level and pixel noise from its border ring (module docstring)."""
@@ -267,16 +270,16 @@ class StampDetector:
         m = len(win)
         side = 2 * self.radius + 1
         big = side + 2
-        centre = (origins[win, 1] + py) * self.frame_shape[1] + origins[win, 0] + px
-        flat = np.ascontiguousarray(image).reshape(-1)
-        wide = flat[centre[:, None] + self.wide_offsets[None, :]].astype(np.float32)
+        corner = self.radius + 1
+        wide = _window_view(image, big)[origins[win, 1] + py - corner,
+                                        origins[win, 0] + px - corner].astype(np.float32)
         keep = np.ones(m, bool)
         if m == 0:
             return np.zeros((0, side * side)), keep
         # the median of each stamp's own pixels: the outer ring (only read by the median)
         # keeps the stamps apart in the tall image OpenCV filters
         median = cv2.medianBlur(wide.reshape(m * big, big), 3).reshape(m, big, big)
-        stamps = wide.reshape(m, big, big)[:, 1:-1, 1:-1].astype(np.float64)
+        stamps = wide[:, 1:-1, 1:-1].astype(np.float64)
         median = median[:, 1:-1, 1:-1].reshape(m, -1)
         stamps = stamps.reshape(m, -1)
         level = self.level[win].astype(np.float64)[:, None]
@@ -363,12 +366,14 @@ class StampDetector:
         count = len(keep)
         s = self.table.stars
         s["x"][:count], s["y"][:count] = fx[keep], fy[keep]
-        s["flux"][:count] = signal[keep].sum(axis=1)
-        s["peak"][:count] = signal[keep][:, self.centre9].max(axis=1)
+        kept = signal[keep]
+        s["flux"][:count] = kept.sum(axis=1)
+        s["peak"][:count] = kept[:, self.centre9].max(axis=1)
         s["snr"][:count] = snr[keep]
-        s["npix"][:count] = np.count_nonzero(signal[keep] > 3.0 * noise[keep, None], axis=1)
+        s["npix"][:count] = np.count_nonzero(kept > 3.0 * noise[keep, None], axis=1)
         flags = np.zeros(count, np.uint16)
-        flags[raw[keep][:, self.centre9].max(axis=1) >= self.saturation] |= StarFlag.SATURATED
+        flags[raw[keep[:, None], self.centre9].max(axis=1) >= self.saturation] |= \
+            StarFlag.SATURATED
         flags[(ellipticity[keep] > self.cfg.elongation_max) & judged[keep]] |= StarFlag.ELONGATED
         flags[blended[keep]] |= StarFlag.BLENDED
         s["flags"][:count] = flags
@@ -380,14 +385,15 @@ class StampDetector:
         gain 2) of stamps ``grid`` (m, side, side) from (x, y) px off their centres."""
         inv = -0.5 / self.expected_size
         pos = np.stack((x, y))                                   # (2, m)
+        weight = np.empty((len(x), 2, len(self.stamp_axis)))     # g_y and g_y e_y by row
         for _ in range(self.cfg.centroid_iterations):
-            e = self.stamp_axis[None, None, :] - pos[:, :, None]  # (2, m, side)
+            e = self.stamp_axis - pos[:, :, None]                # (2, m, side): x, y
             g = np.exp(inv * e * e)
-            cols = np.einsum("nij,ni->nj", grid, g[1]) * g[0]     # weighted along y
-            rows = np.einsum("nij,nj->ni", grid, g[0]) * g[1]     # weighted along x
-            total = cols.sum(axis=1)
-            step = np.stack((np.einsum("ij,ij->i", cols, e[0]), np.einsum("ij,ij->i", rows, e[1])))
-            step *= 2.0 / np.where(total > 0, total, np.inf)      # no light: no step
+            weight[:, 0], weight[:, 1] = g[1], g[1] * e[1]
+            cols = np.einsum("nij,nai->naj", grid, weight)       # (m, 2, side)
+            sums = np.einsum("naj,nj->an", cols, g[0])           # (total, sum g e_y)
+            step = np.stack((np.einsum("nj,nj->n", cols[:, 0], g[0] * e[0]), sums[1]))
+            step *= 2.0 / np.where(sums[0] > 0, sums[0], np.inf)   # no light: no step
             moved = np.clip(pos + step, -_MAX_SHIFT_PX, _MAX_SHIFT_PX)
             done = np.abs(moved - pos).max() < self.cfg.centroid_tolerance_px
             pos = moved

@@ -360,11 +360,13 @@ class Solver:
         subset = None if search_area_px is None else np.asarray(predicted)
         if self._can_track(t_ns):
             timer.start("track")
-            R = self._track(xy, lens_cam, t_ns, subset, predicted_xy)
-            if R is not None:
+            tracked = self._track(xy, lens_cam, t_ns, subset, predicted_xy)
+            if tracked is not None:
                 timer.start("refine")
+                R, pairs = tracked
                 sol = self._finish(R, None, xy, flux, idx, hip, t_ns, "tracking", None, None,
-                                   search_area_px or self._area, subset)
+                                   search_area_px or self._area, subset,
+                                   None if predicted_xy is None else pairs)
                 if sol is not None:
                     return sol
         if search_area_px is not None:
@@ -478,6 +480,22 @@ class Solver:
         pinhole[:, 1] = (xy[:, 1] - camera.cy) / camera.f_px
         return pixel_jacobian(camera, pinhole) @ (self._rate * exposure_s)
 
+    def max_smear_px(self, t_ns: int, exposure_s: float) -> float | None:
+        """An upper bound of :meth:`smear_px` over the whole frame, px (None without a rate).
+
+        |J omega T| <= |J|_F |omega| T, and every entry of the pinhole J grows
+        with |u| and |w|: |J|_F at the frame's farthest |u| and |w| bounds it
+        everywhere (a few per cent of distortion below the bound's slack).
+        """
+        if not self._can_track(t_ns) or self._rate is None:
+            return None
+        camera = self.lens_camera()
+        u = max(camera.cx + 0.5, camera.width - 0.5 - camera.cx) / camera.f_px
+        w = max(camera.cy + 0.5, camera.height - 0.5 - camera.cy) / camera.f_px
+        norm = math.sqrt(2.0 * (u * w) ** 2 + (1.0 + u * u) ** 2 + (1.0 + w * w) ** 2
+                         + u * u + w * w)
+        return camera.f_px * norm * float(np.linalg.norm(self._rate)) * exposure_s
+
     def _can_track(self, t_ns: int) -> bool:
         if self._last_R is None or self._last_t is None:
             return False
@@ -499,8 +517,10 @@ class Solver:
         return subset[inside], pix[inside]
 
     def _track(self, xy, camera: CameraModel, t_ns: int, subset: np.ndarray | None = None,
-               subset_xy: np.ndarray | None = None) -> np.ndarray | None:
-        """The attitude from the predicted one after one gated pass, or None.
+               subset_xy: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+        """The attitude from the predicted one after one gated pass and the pass's pairs
+        (per image star its index into the predictions, ``subset`` when given, or -1), or
+        None.
 
         ``subset_xy``: the pixels of ``subset`` at the predicted attitude, if known.
         """
@@ -512,7 +532,7 @@ class Solver:
         ok = which >= 0
         if np.count_nonzero(ok) < self.cfg.min_matched:
             return None
-        return solve_wahba(self._observed(camera, xy)[ok], self._seen(cat_idx[which[ok]]))
+        return solve_wahba(self._observed(camera, xy)[ok], self._seen(cat_idx[which[ok]])), which
 
     def _seen(self, cat_idx: np.ndarray) -> np.ndarray:
         """Catalogue directions as this frame's observer sees them (module docstring)."""
@@ -601,15 +621,39 @@ class Solver:
         self._photometric_check(ok, which, cat_idx, flux)
         return ok, which, cat_idx, pred, dist
 
+    def _match_pairs(self, R, camera, xy, flux, radius: float, cat_idx: np.ndarray,
+                     pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ok mask, which, distances) as :meth:`_match_catalogue` gives them, from the gated
+        pass's ``pairs`` into ``cat_idx``: each paired star keeps its star if within
+        ``radius`` of it at ``R``.
+
+        Only the paired stars are projected and nothing is searched: the
+        windows' predictions are the stars that carry the attitude, far apart
+        against the attitude's correction (a fraction of a pixel to a few),
+        so a star's nearest prediction does not change with it.
+        """
+        rows = np.flatnonzero(pairs >= 0)
+        pix = camera.vector_to_pixel(self._seen(cat_idx[pairs[rows]]) @ R.T)
+        d = np.hypot(pix[:, 0] - xy[rows, 0], pix[:, 1] - xy[rows, 1])
+        rows, d = rows[d <= radius], d[d <= radius]
+        which = np.full(len(xy), -1, np.int64)
+        dist = np.full(len(xy), np.inf)
+        which[rows], dist[rows] = pairs[rows], d
+        ok = which >= 0
+        self._photometric_check(ok, which, cat_idx, flux)
+        return ok, which, dist
+
     def _finish(self, R, prob, xy, flux, idx, hip, t_ns, mode, budget, f_px,
-                area_px: float | None = None, subset: np.ndarray | None = None
-                ) -> Solution | None:
+                area_px: float | None = None, subset: np.ndarray | None = None,
+                pairs: np.ndarray | None = None) -> Solution | None:
         """Refine against the catalogue, fit the lens, update the state (module docstring).
 
         ``prob`` None (tracking) means: verify here, with the refined matches
         (the stars found in ``area_px``); returns None if they do not verify.
         ``f_px``: the focal length lost in space found with ``R`` (None: the
-        filtered lens's). ``subset``: windowed tracking (see :meth:`solve`).
+        filtered lens's). ``subset``: windowed tracking (see :meth:`solve`); ``pairs``
+        its gated pass's pairs (:meth:`_track`), which the refined matches are
+        taken from (:meth:`_match_pairs`).
         """
         cfg = self.cfg
         camera = self.lens_camera()
@@ -627,11 +671,16 @@ class Solver:
             first = fit_frame(xy[ok], self._seen(cat_idx[which[ok]]), R, camera,
                               self._prior, cfg.centroid_sigma_px)
             R, camera, radius = first.R, first.camera, self._final_radius(first.residuals)
-        ok, which, cat_idx, pred, dist = self._match_catalogue(R, camera, xy, flux, radius,
-                                                               subset)
+        if pairs is None:
+            ok, which, cat_idx, pred, dist = self._match_catalogue(R, camera, xy, flux, radius,
+                                                                   subset)
+            predicted = len(pred)
+        else:
+            ok, which, dist = self._match_pairs(R, camera, xy, flux, radius, subset, pairs)
+            cat_idx, predicted = subset, len(subset)
         n = int(np.count_nonzero(ok))
         if prob is None:
-            prob = false_match_probability(n, len(xy), len(pred), radius, area_px, 1)
+            prob = false_match_probability(n, len(xy), predicted, radius, area_px, 1)
             if n < cfg.min_matched or prob >= cfg.max_prob_false:
                 return None
         if n < 4:
