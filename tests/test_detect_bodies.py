@@ -10,6 +10,7 @@ import numpy as np
 from tracker.config import DetectConfig, SimConfig
 from tracker.detect import make_detector
 from tracker.detect.result import StarFlag
+from tracker.detect.surroundings import across_a_line
 from tracker.sim import render_points
 from tracker.sim.psf_shapes import PsfShape
 from tracker.sim.scene import Scene, particle_tracks, sun_glare
@@ -247,3 +248,21 @@ def test_stars_trailed_across_the_frame_are_not_taken_for_tracks():
     assert result.psf_ellipticity > 0.4
     assert np.all(_nearest(xs, ys, result.stars) < 1.0)
     assert result.counters["cosmic_rays"] == 0
+
+
+def test_a_line_has_light_in_two_opposite_sectors_and_sky_at_right_angles_to_them():
+    """Sectors are numbered by angle, k and k + 4 facing each other: light in 1 and 5 with
+    sky in 3 and 7 is a line (in any of the four directions); light on one side only (a
+    star beside a body), or in 1 and 5 with 3 not sky (a blob, or a star's own wings all
+    round), is not."""
+    light = np.zeros((6, 8), bool)
+    sky = np.ones((6, 8), bool)
+    light[0, [1, 5]] = True
+    light[1, [1, 5]] = True
+    sky[1, 3] = False
+    light[2, [0, 1, 2]] = True
+    light[3, [3, 7]] = True
+    light[4, [0, 4]] = True
+    light[5] = True
+    sky[[0, 1, 2, 3, 4, 5]] &= ~light[[0, 1, 2, 3, 4, 5]]
+    assert across_a_line(light, sky).tolist() == [True, False, False, True, True, False]

@@ -102,7 +102,7 @@ from tracker.detect.sigma_steps import SigmaSteps
 from tracker.detect.significance import shot_noise_snr
 from tracker.detect.slabs import SlabRunner
 from tracker.detect.stars import StarTable
-from tracker.detect.surroundings import Surroundings, sky_noise_model
+from tracker.detect.surroundings import Surroundings, across_a_line, sky_noise_model
 from tracker.detect.threshold import NoiseTail, gaussian_peak_threshold, skewed_threshold
 from tracker.detect.windowed import WindowedCentroider
 from tracker.normal import pixel_fractions
@@ -150,6 +150,7 @@ _TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is
 _TEXTURED_SKY_SECTORS = 6      # ... and its candidates need this many sky sectors
 _TILE_NEIGHBOURS = np.ones((3, 3), np.uint8)
 _BROAD_SKY_SECTORS = 4         # a broad candidate needs this many sky sectors
+_LINE_MAX_ELLIPTICITY = 0.25   # a frame's PSF rounder than this: light across is a line
 _WING_LEVEL = 0.5              # a saturated star's wings are under this much of saturation
 _DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part holds an edge
 _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its tail modelled
@@ -940,7 +941,11 @@ class DefaultDetector:
         self.grid.at(self.near_texture.view(np.uint8), cand, near)
         need = np.where(near > 0, max(self.cfg.min_sky_sectors, _TEXTURED_SKY_SECTORS),
                         self.cfg.min_sky_sectors)
-        embedded = sectors < need
+        # a thin line of light (a crescent, a ghost's ring) has sky across it, not along
+        # it; a trailed frame's stars have their own light along the trail
+        line = self.psf.ellipticity < _LINE_MAX_ELLIPTICITY
+        embedded = (sectors < need) | (line & across_a_line(self.surroundings.light[:n],
+                                                             self.surroundings.sky[:n]))
         # a saturated star's wings fall away from its centroid on every side (a body on
         # one side takes no more sectors from it than from an unsaturated star)
         clipped = embedded & (v["raw_peak"][:n] >= self.saturation)
@@ -955,5 +960,6 @@ class DefaultDetector:
             falling = self.surroundings.falling_sectors(
                 self.input.padded, self.bg_pad, centre, sky[clipped], v["peak"][clipped],
                 _WING_LEVEL * (self.saturation - bg[clipped]))
-            embedded[clipped] = falling < need[clipped]
+            embedded[clipped] = (np.sum(falling, axis=1) < need[clipped]) | (
+                line & across_a_line(~falling, falling))
         return embedded
