@@ -152,7 +152,9 @@ _TILE_NEIGHBOURS = np.ones((3, 3), np.uint8)
 _BROAD_SKY_SECTORS = 4         # a broad candidate needs this many sky sectors
 _LINE_MAX_ELLIPTICITY = 0.25   # a frame's PSF rounder than this: light across is a line
 _WING_LEVEL = 0.5              # a saturated star's wings are under this much of saturation
-_DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part holds an edge
+_DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part holds an edge,
+_BODY_TOP = 0.9                # ... or whose 90th percentile is that much above its level
+_STEP_OVER_SLOPE = 4.0         # ... and 4 x as far as its level above its darker part
 _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its tail modelled
 
 
@@ -498,6 +500,13 @@ class DefaultDetector:
         sky_noise = np.sqrt(var0 + slope * np.maximum(dark - level0, 0.0))
         np.logical_and(grid.level_raw - dark > _DARK_SIDE_SIGMAS * sky_noise,
                        grid.level_raw < 0.9 * self.saturation, out=self.dark_side)
+        # a body in a tile's brightest tenth only (a sliver of ground or the Earth at its
+        # edge): its middle is sky, its top far above it, unlike a slope's, whose top
+        # stands above its middle no further than its middle above its darker part
+        top = grid.samples[..., int(round(_BODY_TOP * (m - 1)))] - grid.level_raw
+        self.dark_side |= ((top > _DARK_SIDE_SIGMAS * sky_noise)
+                           & (top > _STEP_OVER_SLOPE * (grid.level_raw - dark))
+                           & (grid.level_raw < 0.9 * self.saturation))
         # sky tiles beside a saturated one (lit ground, the Earth) and the dark side of an
         # edge: their pixels keep the tile's own level and threshold, not a blend with
         # the saturated level beyond the edge (beside glare's core the tiles are bright
