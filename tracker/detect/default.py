@@ -284,6 +284,7 @@ class DefaultDetector:
         dy, dx = (a.ravel() for a in np.mgrid[-max_radius:max_radius + 1,
                                               -max_radius:max_radius + 1])
         self.plateau_offsets = (dy * layout.stride + dx).astype(np.intp)
+        self.plateau_reach = float(max_radius)   # px: one plateau's pieces lie this close
         self.plateau_xy = np.stack([dx, dy], axis=1).astype(np.float64)
         self.plateau_index = np.zeros((_PLATEAU_STARS, dx.size), np.intp)
         self.plateau_reads = np.zeros((_PLATEAU_STARS, dx.size), np.uint16)
@@ -971,4 +972,33 @@ class DefaultDetector:
                 _WING_LEVEL * (self.saturation - bg[clipped]))
             embedded[clipped] = (np.sum(falling, axis=1) < need[clipped]) | (
                 line & across_a_line(~falling, falling))
+        embedded |= self._one_plateau(n, cand, v)
         return embedded
+
+    def _one_plateau(self, n: int, cand: np.ndarray, v: dict) -> np.ndarray:
+        """Saturated candidates that share their clipped plateau with another: (n,) bool.
+
+        A star's clipped core has one maximum, so two saturated candidates
+        within the widest centroid window of each other, with the pixel
+        halfway between them at full scale too, are pieces of one body (the
+        lit edge of the Earth, a saturated crescent), or two stars whose
+        cores have merged, neither of which can be centred. Judges the first
+        ``_PLATEAU_STARS`` saturated candidates.
+        """
+        out = np.zeros(n, bool)
+        sat = np.flatnonzero(v["raw_peak"][:n] >= self.saturation)[:_PLATEAU_STARS]
+        if len(sat) < 2:
+            return out
+        rows, cols = self.layout.frame_position(cand[sat])
+        x, y = cols + v["x0"][sat], rows + v["y0"][sat]
+        near = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :]) <= self.plateau_reach
+        np.fill_diagonal(near, False)
+        i, j = np.nonzero(np.triu(near))
+        if len(i) == 0:
+            return out
+        mid = self.layout.flat_index(np.rint(0.5 * (y[i] + y[j])).astype(np.intp),
+                                     np.rint(0.5 * (x[i] + x[j])).astype(np.intp))
+        joined = np.take(self.input.padded.ravel(), mid, mode="clip") >= self.saturation
+        out[sat[i[joined]]] = True
+        out[sat[j[joined]]] = True
+        return out
