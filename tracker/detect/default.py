@@ -123,6 +123,7 @@ _PSF_RING_SIGMAS = 4.5         # tracker.detect.psf's isolation ring reaches thi
 _PSF_ROUND = 0.5               # a PSF candidate's 5x5 light is rounder than this
 _PLATEAU_STARS = 64            # saturated stars centred on their clipped core, at most
 _PLATEAU_FILL = 0.7            # ... when its radius is this much of the window's
+_PLATEAU_PAIRS = 65536         # pairs of saturated candidates judged for sharing a plateau
 _CHUNK = 128                   # stars centroided at a time (bounds the window buffers)
 _ROUGH_REFERENCE_SNR = 30.0    # spots this bright set the frame's roughness reference
 _STAR_WIDTH = math.log(1.25)   # ... if their width is within 25 % of the PSF's
@@ -982,20 +983,28 @@ class DefaultDetector:
         within the widest centroid window of each other, with the pixel
         halfway between them at full scale too, are pieces of one body (the
         lit edge of the Earth, a saturated crescent), or two stars whose
-        cores have merged, neither of which can be centred. Judges the first
-        ``_PLATEAU_STARS`` saturated candidates.
+        cores have merged, neither of which can be centred. The pairs come
+        from a sweep along x (each candidate against those up to the window
+        to its right), at most ``_PLATEAU_PAIRS`` of them.
         """
         out = np.zeros(n, bool)
-        sat = np.flatnonzero(v["raw_peak"][:n] >= self.saturation)[:_PLATEAU_STARS]
+        sat = np.flatnonzero(v["raw_peak"][:n] >= self.saturation)
         if len(sat) < 2:
             return out
         rows, cols = self.layout.frame_position(cand[sat])
-        x, y = cols + v["x0"][sat], rows + v["y0"][sat]
-        near = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :]) <= self.plateau_reach
-        np.fill_diagonal(near, False)
-        i, j = np.nonzero(np.triu(near))
-        if len(i) == 0:
+        order = np.argsort(cols + v["x0"][sat], kind="stable")
+        sat = sat[order]
+        x = (cols[order] + v["x0"][sat]).astype(np.float64)
+        y = (rows[order] + v["y0"][sat]).astype(np.float64)
+        m = len(sat)
+        after = np.searchsorted(x, x + self.plateau_reach, side="right") - np.arange(1, m + 1)
+        total = min(int(after.sum()), _PLATEAU_PAIRS)
+        if total == 0:
             return out
+        i = np.repeat(np.arange(m), after)[:total]
+        j = i + 1 + np.arange(total) - np.repeat(np.cumsum(after) - after, after)[:total]
+        near = np.hypot(x[i] - x[j], y[i] - y[j]) <= self.plateau_reach
+        i, j = i[near], j[near]
         mid = self.layout.flat_index(np.rint(0.5 * (y[i] + y[j])).astype(np.intp),
                                      np.rint(0.5 * (x[i] + x[j])).astype(np.intp))
         joined = np.take(self.input.padded.ravel(), mid, mode="clip") >= self.saturation
