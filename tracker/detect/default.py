@@ -13,9 +13,10 @@ handled, sigma 3.5 px):
    them.
 2. ``background``: per-tile median and low-side noise on a coarse grid,
    3x3-median-filtered and interpolated to full size (tracker.detect.background).
-   Tiles across a body's edge take the sky's statistics from their darker
-   part, and sky tiles beside a saturated one (lit ground, the Earth) keep
-   their own level and threshold rather than a blend with full scale.
+   Tiles across a body's edge (or with a sliver of it in their brightest
+   tenth) take the sky's statistics from their darker part, and sky tiles
+   beside a saturated one (lit ground, the Earth) keep their own level and
+   threshold rather than a blend with full scale.
 3. ``impulses``: hot pixels, cosmic-ray tracks and salt-and-pepper pixels,
    recognised by being much sharper than the sharpest PSF the detector
    handles (sigma 0.45 px), are replaced by their 3x3 median and counted
@@ -46,7 +47,12 @@ handled, sigma 3.5 px):
    at the pixel scale than any image of the sky (cosmic-ray clusters that
    survived steps 3-4), are rejected and counted; so are saturated spots
    holding less light than the PSF's area times their clipped peak (judged
-   at any SNR: on glare a track's SNR is low, its shape still plain). With
+   at any SNR: on glare a track's SNR is low, its shape still plain).
+   Maxima on a bright body are masked (tracker.detect.surroundings): too few
+   sky sectors around them, light along a line with sky across it (a
+   crescent, a ghost's ring), or a clipped plateau shared with another
+   saturated candidate (the Earth's lit edge); a star beside the body keeps
+   the sky on its side. With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
    every centre instead, from the frame as delivered; the shape tests
