@@ -157,7 +157,7 @@ _TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is
 _TEXTURED_SKY_SECTORS = 6      # ... and its candidates need this many sky sectors
 _TILE_NEIGHBOURS = np.ones((3, 3), np.uint8)
 _BROAD_SKY_SECTORS = 4         # a broad candidate needs this many sky sectors
-_LINE_MAX_ELLIPTICITY = 0.25   # a frame's PSF rounder than this: light across is a line
+_LINE_MAX_ELLIPTICITY = 0.25   # a frame's PSF and spots rounder than this: a line is light
 _WING_LEVEL = 0.5              # a saturated star's wings are under this much of saturation
 _DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part holds an edge,
 _BODY_TOP = 0.9                # ... or whose 90th percentile is that much above its level
@@ -960,7 +960,7 @@ class DefaultDetector:
                         self.cfg.min_sky_sectors)
         # a thin line of light (a crescent, a ghost's ring) has sky across it, not along
         # it; a trailed frame's stars have their own light along the trail
-        line = self.psf.ellipticity < _LINE_MAX_ELLIPTICITY
+        line = max(self.psf.ellipticity, self._common_elongation(n, v)) < _LINE_MAX_ELLIPTICITY
         embedded = (sectors < need) | (line & across_a_line(self.surroundings.light[:n],
                                                              self.surroundings.sky[:n]))
         # a saturated star's wings fall away from its centroid on every side (a body on
@@ -981,6 +981,23 @@ class DefaultDetector:
                 line & across_a_line(~falling, falling))
         embedded |= self._one_plateau(n, cand, v)
         return embedded
+
+    def _common_elongation(self, n: int, v: dict) -> float:
+        """How elongated the frame's significant spots are in one direction: the length of
+        their mean ellipticity vector ((Mxx - Myy, 2 Mxy) / (Mxx + Myy) of the windowed
+        moments), over unsaturated, unblended candidates at SNR >= 20; 0 for fewer than 5.
+
+        A slewing camera trails every star alike (the PSF meter, which takes round
+        stars, does not see it); particle tracks and a crescent's pieces point every
+        way, and round stars not at all.
+        """
+        use = ((v["snr"][:n] >= _SECOND_LOOK_SNR) & (v["raw_peak"][:n] < self.saturation)
+               & ~self.peaks.blended[:n])
+        if np.count_nonzero(use) < 5:
+            return 0.0
+        mxx, myy, mxy = v["mxx"][:n][use], v["myy"][:n][use], v["mxy"][:n][use]
+        size = np.maximum(mxx + myy, 1e-12)
+        return float(np.hypot(np.mean((mxx - myy) / size), np.mean(2.0 * mxy / size)))
 
     def _one_plateau(self, n: int, cand: np.ndarray, v: dict) -> np.ndarray:
         """Saturated candidates that share their clipped plateau with another: (n,) bool.
