@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from tracker.bench.detect_data import _sensor_saturation, _sensor_variance
 from tracker.bench.detect_peers import PEERS
 from tracker.bench.detect_score import FrameTruth, Score, match
 from tracker.config import SimConfig
@@ -43,6 +44,23 @@ def test_score_counts_recall_fdr_and_errors():
     assert s["fdr"] == pytest.approx(1 / 3)
     assert s["rmse_px"] == pytest.approx(0.05)
     assert s["rmse_over_crb_snr20"] == pytest.approx(0.05 / 0.02)
+
+
+def test_a_star_on_a_background_at_full_scale_is_not_detectable():
+    """Two stars of equal light: one on the sky, one under light that takes its pixels past
+    full scale (glare, lit ground). The second leaves no trace in the frame (every pixel
+    around it reads full scale), so the recall does not count it; the first it does."""
+    rng = np.random.default_rng(5)
+    shape = (64, 128)
+    light = np.zeros(shape)
+    light[:, 64:] = 40000.0                       # far past full scale at the default gain
+    frame = render_points(shape, np.array([32.0, 96.0]), np.array([32.0, 32.0]),
+                          np.full(2, 20000.0), SimConfig(), rng, noise_model="realistic",
+                          light_e=light)
+    assert np.all(frame.image[24:41, 88:105] == 1023)
+    truth = FrameTruth.from_frame(frame, "peak_snr >= 5", _sensor_variance, 1.0, 1.2,
+                                  _sensor_saturation(10))
+    assert truth.detectable.tolist() == [True, False]
 
 
 @pytest.mark.parametrize("peer", sorted(PEERS))

@@ -283,8 +283,10 @@ class DetectConfig:
                              "window", "ratio", min=1.0, max=1000.0)
     min_sky_sectors: int = knob(3, "default: mask a candidate with fewer of the eight sectors "
                                 "around it (3.5 PSF sigmas out) at the sky's level and noise: a "
-                                "bump on lit terrain, foliage or a planet's disc (0 = off; a "
-                                "star beside such a body keeps the sectors on the sky side)",
+                                "bump on lit terrain, foliage or a planet's disc; also one on a "
+                                "thin line of light (a crescent, a ghost's ring) or sharing a "
+                                "clipped plateau with another (0 = off, all three; a star "
+                                "beside such a body keeps the sectors on the sky side)",
                                 "sectors", min=0, max=8)
     saturation_adu: float | None = knob(None, "default: level flagged SATURATED; null = "
                                         "full scale of the bit depth", "ADU", min=1.0)

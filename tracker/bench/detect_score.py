@@ -10,8 +10,10 @@ detection; hot pixels, cosmic rays and noise are false.
 
 Detectable stars (the recall denominator and the error statistics): inside
 the frame at least ``BORDER_PX`` from the edge, not blended (no other star
-of at least ``BLEND_FLUX`` of its flux within ``BLEND_PX``), and meeting the
-set's criterion (peak SNR >= 5 or matched-filter SNR >= 7).
+of at least ``BLEND_FLUX`` of its flux within ``BLEND_PX``), on a background
+below full scale (a star under glare or lit ground that already saturates
+its pixels leaves no trace in them), and meeting the set's criterion (peak
+SNR >= 5 or matched-filter SNR >= 7).
 
 Metrics (docs/seed-method.md's definitions): Euclidean error d per matched
 detectable star, RMSE = sqrt(mean d^2), mean d, FDR = false / detected,
@@ -89,7 +91,8 @@ class FrameTruth:
         loud = s["flux_e"][None, :] >= BLEND_FLUX * s["flux_e"][:, None]
         blended = np.any((d < BLEND_PX) & loud, axis=1)
         good = s["peak_snr"] >= 5.0 if criterion.startswith("peak") else s["mf_snr"] >= 7.0
-        detectable = inside & ~blended & good
+        seen = np.array([saturation(frame, i) > 0.0 for i in range(len(s))], bool)
+        detectable = inside & ~blended & good & seen
         crb = np.full(len(s), np.nan)
         psf = _truth_psf(frame)
         model, box_sigma, which = None, sigma_px, detectable

@@ -13,9 +13,10 @@ handled, sigma 3.5 px):
    them.
 2. ``background``: per-tile median and low-side noise on a coarse grid,
    3x3-median-filtered and interpolated to full size (tracker.detect.background).
-   Tiles across a body's edge take the sky's statistics from their darker
-   part, and sky tiles beside a saturated one (lit ground, the Earth) keep
-   their own level and threshold rather than a blend with full scale.
+   Tiles across a body's edge (or with a sliver of it in their brightest
+   tenth) take the sky's statistics from their darker part, and sky tiles
+   beside a saturated one (lit ground, the Earth) keep their own level and
+   threshold rather than a blend with full scale.
 3. ``impulses``: hot pixels, cosmic-ray tracks and salt-and-pepper pixels,
    recognised by being much sharper than the sharpest PSF the detector
    handles (sigma 0.45 px), are replaced by their 3x3 median and counted
@@ -48,7 +49,11 @@ handled, sigma 3.5 px):
    (fainter ones when narrower than a star beyond their noise); so are
    saturated spots holding less light than the PSF's area times their
    clipped peak (judged at any SNR: on glare a track's SNR is low, its
-   shape still plain). With
+   shape still plain). Maxima on a bright body are masked
+   (tracker.detect.surroundings): too few sky sectors around them, light
+   along a line with sky across it (a crescent, a ghost's ring), or a
+   clipped plateau shared with another saturated candidate (the Earth's lit
+   edge); a star beside the body keeps the sky on its side. With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
    every centre instead, from the frame as delivered; the shape tests
@@ -106,7 +111,7 @@ from tracker.detect.sigma_steps import SigmaSteps
 from tracker.detect.significance import shot_noise_snr
 from tracker.detect.slabs import SlabRunner
 from tracker.detect.stars import StarTable
-from tracker.detect.surroundings import Surroundings, sky_noise_model
+from tracker.detect.surroundings import Surroundings, across_a_line, sky_noise_model
 from tracker.detect.threshold import NoiseTail, gaussian_peak_threshold, skewed_threshold
 from tracker.detect.windowed import WindowedCentroider
 from tracker.timing import StageTimer
@@ -126,6 +131,7 @@ _PSF_RING_SIGMAS = 4.5         # tracker.detect.psf's isolation ring reaches thi
 _PSF_ROUND = 0.5               # a PSF candidate's 5x5 light is rounder than this
 _PLATEAU_STARS = 64            # saturated stars centred on their clipped core, at most
 _PLATEAU_FILL = 0.7            # ... when its radius is this much of the window's
+_PLATEAU_PAIRS = 65536         # pairs of saturated candidates judged for sharing a plateau
 _CHUNK = 128                   # stars centroided at a time (bounds the window buffers)
 _ROUGH_REFERENCE_SNR = 30.0    # spots this bright set the frame's roughness scale
 _ROUGH_SPREADS = 4.0           # rougher than a star by this many of its noise's spreads
@@ -155,8 +161,11 @@ _TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is
 _TEXTURED_SKY_SECTORS = 6      # ... and its candidates need this many sky sectors
 _TILE_NEIGHBOURS = np.ones((3, 3), np.uint8)
 _BROAD_SKY_SECTORS = 4         # a broad candidate needs this many sky sectors
+_LINE_MAX_ELLIPTICITY = 0.25   # a frame's PSF and spots rounder than this: a line is light
 _WING_LEVEL = 0.5              # a saturated star's wings are under this much of saturation
-_DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part holds an edge
+_DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part holds an edge,
+_BODY_TOP = 0.9                # ... or whose 90th percentile is that much above its level
+_STEP_OVER_SLOPE = 4.0         # ... and 4 x as far as its level above its darker part
 _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its tail modelled
 
 
@@ -267,6 +276,7 @@ class DefaultDetector:
         dy, dx = (a.ravel() for a in np.mgrid[-max_radius:max_radius + 1,
                                               -max_radius:max_radius + 1])
         self.plateau_offsets = (dy * layout.stride + dx).astype(np.intp)
+        self.plateau_reach = float(max_radius)   # px: one plateau's pieces lie this close
         self.plateau_xy = np.stack([dx, dy], axis=1).astype(np.float64)
         self.plateau_index = np.zeros((_PLATEAU_STARS, dx.size), np.intp)
         self.plateau_reads = np.zeros((_PLATEAU_STARS, dx.size), np.uint16)
@@ -488,6 +498,13 @@ class DefaultDetector:
         sky_noise = np.sqrt(var0 + slope * np.maximum(dark - level0, 0.0))
         np.logical_and(grid.level_raw - dark > _DARK_SIDE_SIGMAS * sky_noise,
                        grid.level_raw < 0.9 * self.saturation, out=self.dark_side)
+        # a body in a tile's brightest tenth only (a sliver of ground or the Earth at its
+        # edge): its middle is sky, its top far above it, unlike a slope's, whose top
+        # stands above its middle no further than its middle above its darker part
+        top = grid.samples[..., int(round(_BODY_TOP * (m - 1)))] - grid.level_raw
+        self.dark_side |= ((top > _DARK_SIDE_SIGMAS * sky_noise)
+                           & (top > _STEP_OVER_SLOPE * (grid.level_raw - dark))
+                           & (grid.level_raw < 0.9 * self.saturation))
         # sky tiles beside a saturated one (lit ground, the Earth) and the dark side of an
         # edge: their pixels keep the tile's own level and threshold, not a blend with
         # the saturated level beyond the edge (beside glare's core the tiles are bright
@@ -954,7 +971,11 @@ class DefaultDetector:
         self.grid.at(self.near_texture.view(np.uint8), cand, near)
         need = np.where(near > 0, max(self.cfg.min_sky_sectors, _TEXTURED_SKY_SECTORS),
                         self.cfg.min_sky_sectors)
-        embedded = sectors < need
+        # a thin line of light (a crescent, a ghost's ring) has sky across it, not along
+        # it; a trailed frame's stars have their own light along the trail
+        line = max(self.psf.ellipticity, self._common_elongation(n, v)) < _LINE_MAX_ELLIPTICITY
+        embedded = (sectors < need) | (line & across_a_line(self.surroundings.light[:n],
+                                                             self.surroundings.sky[:n]))
         # a saturated star's wings fall away from its centroid on every side (a body on
         # one side takes no more sectors from it than from an unsaturated star)
         clipped = embedded & (v["raw_peak"][:n] >= self.saturation)
@@ -969,5 +990,60 @@ class DefaultDetector:
             falling = self.surroundings.falling_sectors(
                 self.input.padded, self.bg_pad, centre, sky[clipped], v["peak"][clipped],
                 _WING_LEVEL * (self.saturation - bg[clipped]))
-            embedded[clipped] = falling < need[clipped]
+            embedded[clipped] = (np.sum(falling, axis=1) < need[clipped]) | (
+                line & across_a_line(~falling, falling))
+        embedded |= self._one_plateau(n, cand, v)
         return embedded
+
+    def _common_elongation(self, n: int, v: dict) -> float:
+        """How elongated the frame's significant spots are in one direction: the length of
+        their mean ellipticity vector ((Mxx - Myy, 2 Mxy) / (Mxx + Myy) of the windowed
+        moments), over unsaturated, unblended candidates at SNR >= 20; 0 for fewer than 5.
+
+        A slewing camera trails every star alike (the PSF meter, which takes round
+        stars, does not see it); particle tracks and a crescent's pieces point every
+        way, and round stars not at all.
+        """
+        use = ((v["snr"][:n] >= _SECOND_LOOK_SNR) & (v["raw_peak"][:n] < self.saturation)
+               & ~self.peaks.blended[:n])
+        if np.count_nonzero(use) < 5:
+            return 0.0
+        mxx, myy, mxy = v["mxx"][:n][use], v["myy"][:n][use], v["mxy"][:n][use]
+        size = np.maximum(mxx + myy, 1e-12)
+        return float(np.hypot(np.mean((mxx - myy) / size), np.mean(2.0 * mxy / size)))
+
+    def _one_plateau(self, n: int, cand: np.ndarray, v: dict) -> np.ndarray:
+        """Saturated candidates that share their clipped plateau with another: (n,) bool.
+
+        A star's clipped core has one maximum, so two saturated candidates
+        within the widest centroid window of each other, with the pixel
+        halfway between them at full scale too, are pieces of one body (the
+        lit edge of the Earth, a saturated crescent), or two stars whose
+        cores have merged, neither of which can be centred. The pairs come
+        from a sweep along x (each candidate against those up to the window
+        to its right), at most ``_PLATEAU_PAIRS`` of them.
+        """
+        out = np.zeros(n, bool)
+        sat = np.flatnonzero(v["raw_peak"][:n] >= self.saturation)
+        if len(sat) < 2:
+            return out
+        rows, cols = self.layout.frame_position(cand[sat])
+        order = np.argsort(cols + v["x0"][sat], kind="stable")
+        sat = sat[order]
+        x = (cols[order] + v["x0"][sat]).astype(np.float64)
+        y = (rows[order] + v["y0"][sat]).astype(np.float64)
+        m = len(sat)
+        after = np.searchsorted(x, x + self.plateau_reach, side="right") - np.arange(1, m + 1)
+        total = min(int(after.sum()), _PLATEAU_PAIRS)
+        if total == 0:
+            return out
+        i = np.repeat(np.arange(m), after)[:total]
+        j = i + 1 + np.arange(total) - np.repeat(np.cumsum(after) - after, after)[:total]
+        near = np.hypot(x[i] - x[j], y[i] - y[j]) <= self.plateau_reach
+        i, j = i[near], j[near]
+        mid = self.layout.flat_index(np.rint(0.5 * (y[i] + y[j])).astype(np.intp),
+                                     np.rint(0.5 * (x[i] + x[j])).astype(np.intp))
+        joined = np.take(self.input.padded.ravel(), mid, mode="clip") >= self.saturation
+        out[sat[i[joined]]] = True
+        out[sat[j[joined]]] = True
+        return out

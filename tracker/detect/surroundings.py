@@ -19,6 +19,13 @@ clipped, so its wings may stand above a twentieth of what is left of it
 on every side; but they fall away from it on every side, which
 :meth:`Surroundings.falling_sectors` tells.
 
+A thin line of light (a crescent of the Earth, the ring of a lens ghost) has
+sky on two opposite sides and, along itself, light nearly as bright as the
+candidate in the two sectors between them: :func:`across_a_line`. A star
+beside a body has the body on one side only, and a star's own wings, even
+under a PSF three times wider than the one assumed, hold under a third of
+its peak all round.
+
 "The sky's noise" is not the tile's (a tile on textured terrain has a large
 noise, which would excuse its texture) but that of the frame's smooth sky
 at the candidate's background level: var = var0 + slope * (level - level0),
@@ -36,7 +43,7 @@ import numpy as np
 
 from tracker.detect.order import percentile
 
-__all__ = ["Surroundings", "sky_noise_model"]
+__all__ = ["Surroundings", "across_a_line", "sky_noise_model"]
 
 _SECTORS = 8
 _MEAN_ERRORS = 3.0
@@ -44,6 +51,7 @@ _PEAK_FRACTION = 0.05
 _SPREAD = 1.5
 _PEAK_SPREAD = 0.01
 _FALL = 0.5
+_LINE_LIGHT = 0.3
 
 
 def sky_noise_model(level: np.ndarray, noise: np.ndarray,
@@ -68,6 +76,19 @@ def sky_noise_model(level: np.ndarray, noise: np.ndarray,
         return level0, var0, 0.0
     ratio = (var[brighter] - var0) / (level[brighter] - level0)
     return level0, var0, max(0.0, percentile(ratio, 25.0))
+
+
+def across_a_line(light: np.ndarray, sky: np.ndarray) -> np.ndarray:
+    """Whether each candidate lies on a line: (n,) bool from (n, 8) bool sector masks.
+
+    On a line, two opposite sectors (k and k + 4: :class:`Surroundings`
+    numbers them by angle) hold ``light`` and the two at right angles to
+    them (k + 2 and k + 6) are ``sky``.
+    """
+    half, quarter = _SECTORS // 2, _SECTORS // 4
+    along = light[:, :half] & light[:, half:]
+    across = sky & np.roll(sky, -half, axis=1)       # k and k + 4 both sky
+    return np.any(along & np.roll(across, -quarter, axis=1)[:, :half], axis=1)
 
 
 class _Ring:
@@ -108,6 +129,8 @@ class Surroundings:
         self._bg = np.zeros(size, np.float32)
         self._sums = np.zeros((3, self.capacity, _SECTORS), np.float64)
         self.sky_sectors = np.zeros(int(capacity), np.int32)
+        self.sky = np.zeros((int(capacity), _SECTORS), np.bool_)   # which sectors are sky
+        self.light = np.zeros((int(capacity), _SECTORS), np.bool_)  # hold _LINE_LIGHT x peak
         # every ring a width wide out to max_outer, made once: configure only picks
         self._all_rings = [_Ring(self.stride, r - self.width, r)
                            for r in range(self.width + 1, self.max_outer + 1)]
@@ -156,35 +179,37 @@ class Surroundings:
                        cand: np.ndarray, sky_noise: np.ndarray, peak: np.ndarray) -> np.ndarray:
         """How many of the eight sectors around each of ``cand[:n]`` are sky; (n,) view.
 
-        ``image_pad`` and ``bg_pad``: the impulse-cleaned frame and its
-        background, padded alike; ``sky_noise`` (n,) the smooth sky's pixel
-        noise at each candidate and ``peak`` (n,) its peak above the
-        background, ADU.
+        Which ones are is kept in ``self.sky[:n]`` ((n, 8) bool), and which hold a
+        mean of more than 0.3 of the candidate's peak in ``self.light[:n]``. ``image_pad``
+        and ``bg_pad``: the impulse-cleaned frame and its background, padded
+        alike; ``sky_noise`` (n,) the smooth sky's pixel noise at each
+        candidate and ``peak`` (n,) its peak above the background, ADU.
         """
         out = self.sky_sectors[:n]
         for a in range(0, n, self.capacity):
             b = min(n, a + self.capacity)
             mean, spread = self._sector_stats(self.ring, a, b, image_pad, bg_pad, cand)
-            sky = self._is_sky(self.ring, mean, spread, sky_noise[a:b], peak[a:b])
-            np.sum(sky, axis=1, out=out[a:b])
+            self.sky[a:b] = self._is_sky(self.ring, mean, spread, sky_noise[a:b], peak[a:b])
+            np.greater(mean, _LINE_LIGHT * peak[a:b, None], out=self.light[a:b])
+            np.sum(self.sky[a:b], axis=1, out=out[a:b])
         return out
 
     def falling_sectors(self, image_pad: np.ndarray, bg_pad: np.ndarray, centre: np.ndarray,
                         sky_noise: np.ndarray, peak: np.ndarray,
                         ceiling: np.ndarray) -> np.ndarray:
         """For a saturated star at each of ``centre`` (padded flat indices of the pixels
-        nearest its centroid): how many sectors are sky, or fall by half or more to the
+        nearest its centroid): which sectors are sky, or fall by half or more to the
         next ring out, in the first ring whose mean is under ``ceiling`` (n,) ADU above
-        the background (0 if none is: saturated light as far as the rings reach).
+        the background (none if none is: saturated light as far as the rings reach).
 
         A saturated star's wings may stand far above a twentieth of its
         clipped peak on every side, but beyond its clipped core they fall
         away from it on every side; a body's edge, a slope of glare or
-        textured ground does not. Returns a new (n,) int array (there are
+        textured ground does not. Returns a new (n, 8) bool array (there are
         few such stars).
         """
         n = len(centre)
-        out = np.zeros(n, np.int32)
+        out = np.zeros((n, _SECTORS), np.bool_)
         for a in range(0, n, self.capacity):
             b = min(n, a + self.capacity)
             undecided = np.ones(b - a, bool)
@@ -197,7 +222,7 @@ class Surroundings:
                     far, _ = self._sector_stats(outer, a, b, image_pad, bg_pad, centre)
                     falls = sky | ((mean > 0.0) & (mean < ceiling[a:b, None])
                                    & (far < _FALL * mean))
-                    out[a:b][ready] = np.sum(falls, axis=1)[ready]
+                    out[a:b][ready] = falls[ready]
                     undecided &= ~ready
                 if not undecided.any():
                     break
