@@ -1,5 +1,7 @@
 """Replay source and image files: every format, and every way a file can be bad."""
 
+import time
+
 import cv2
 import numpy as np
 import pytest
@@ -112,14 +114,34 @@ def test_replay_loop_and_pacing(tmp_path, frame10):
     cv2.imwrite(str(tmp_path / "a.png"), frame10)
     source = ReplaySource([tmp_path / "a.png"], loop=True, fps=200.0)
     times = []
+    t0 = time.monotonic_ns()
     with source:
         for item in source:
             times.append(item.t_ns)
             if len(times) == 5:
                 source.close()
     assert len(times) == 5
-    # paced at 5 ms: four intervals take at least ~20 ms (sleep never returns early)
-    assert times[-1] - times[0] >= 19e6
+    # paced at 5 ms: four intervals take at least ~20 ms (sleep never returns early) ...
+    assert time.monotonic_ns() - t0 >= 19e6
+    # ... and the frames are stamped exactly 1/fps apart
+    assert np.diff(times).tolist() == [5_000_000] * 4
+
+
+def test_unrecorded_frames_are_stamped_on_a_fixed_time_base(tmp_path, frame10, monkeypatch):
+    """However long each frame takes to process, frame k is stamped start + k x interval."""
+    from tracker.capture import replay as replay_module
+
+    clock = _FakeClock()
+    monkeypatch.setattr(replay_module, "time", clock)
+    for name in ("a.png", "b.png", "c.png"):
+        cv2.imwrite(str(tmp_path / name), frame10)
+    start = clock.now_ns
+    times = []
+    for item, busy_s in zip(ReplaySource([tmp_path], interval_s=0.04), (0.5, 0.001, 3.0),
+                            strict=True):
+        times.append(item.t_ns)
+        clock.now_ns += int(busy_s * 1e9)    # a slow, uneven consumer
+    assert times == [start, start + 40_000_000, start + 80_000_000]
 
 
 def test_missing_path_is_named(tmp_path):

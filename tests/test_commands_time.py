@@ -48,10 +48,10 @@ def test_record_writes_utc_only_when_the_clock_is_trusted(tmp_path, system_clock
     if system_clock == "never":
         assert not any("utc" in r for r in records)
         return
-    for r in records:
-        # replayed files are stamped when read: their utc lies within this run
-        posix = (tai_ns_from_utc_iso(r["utc"]) / 1e9) - 37
-        assert before - 0.01 <= posix <= after + 0.01
+    posix = np.array([tai_ns_from_utc_iso(r["utc"]) / 1e9 - 37 for r in records])
+    # replayed files are stamped from the replay's start, capture.replay_interval_s apart
+    assert before - 0.01 <= posix[0] <= after + 0.01
+    assert np.diff(posix) == pytest.approx([0.1, 0.1], abs=1e-6)
 
 
 def test_record_from_files_keeps_their_own_utc_and_velocity(tmp_path):

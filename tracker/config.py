@@ -466,6 +466,11 @@ class CaptureConfig:
     loop: bool = knob(False, "replay: start again after the last file")
     fps: float = knob(0.0, "frames per second; 0 = replay as fast as possible, live: the "
                       "longest frame the exposure allows", "Hz", min=0.0, max=1000.0)
+    replay_interval_s: float = knob(0.1, "replay: the time between frames whose files carry "
+                                    "no recorded t_ns when fps is 0 (with fps > 0: 1/fps); "
+                                    "they are stamped start + index x interval, so a replay's "
+                                    "answer does not depend on how fast it runs", "s",
+                                    min=1e-4, max=3600.0)
     device: str = knob("0", "live: picamera2 camera number; v4l2: which rp1-cfe with a sensor "
                        "(its number among them, or /dev/mediaN)")
     raw_format: str = knob("R16", "raw format asked for; picamera2: the granted one is "

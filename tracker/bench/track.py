@@ -28,8 +28,10 @@ replay backend looping over one still frame, so every frame after the first
 few is tracked in windows; real link on a pseudo-terminal drained by a
 reader) and reports the Python memory held (tracemalloc) after
 ``--memory-warmup`` frames and at the end, with the window sizes whose
-detectors the pipeline held at both points (a slow frame calls for larger
-windows: their detector is made then, and is no growth per frame).
+detectors the pipeline held at both points (larger windows get their own
+detector when first needed, which is no growth per frame; the replayed
+frames are stamped ``capture.replay_interval_s`` apart however fast the
+machine runs them, so the windows do not follow the machine's load).
 """
 
 from __future__ import annotations

@@ -36,4 +36,4 @@ def make_source(cfg: Config, paths: list[str] | None = None):
         raise FileNotFoundError("replay backend: no frames given (capture.replay_path or "
                                 "--replay PATH)")
     return ReplaySource(paths, loop=cap.loop, fps=cap.fps, bits16_depth=cfg.camera.bit_depth,
-                        expect_shape=shape)
+                        expect_shape=shape, interval_s=cap.replay_interval_s)

@@ -17,12 +17,19 @@ and ``tracker simulate``), one JSON object per frame with ``file`` and any of
 ``2026-11-23T17:29:15.25Z``; a leap second's ``23:59:60`` is accepted) and
 ``observer_velocity_km_s`` ([x, y, z], the observer's velocity relative to
 the Earth's centre at that time, ICRS axes). Replayed frames carry those
-values, so tracking sees the recorded time base rather than the replay's
-(without ``t_ns`` it is the time the file was read), and the solver the
+values, so tracking sees the recorded time base rather than the replay's,
+and the solver the
 recorded absolute time and velocity (tracker.astrometry.observer). A
 ``utc`` or ``observer_velocity_km_s`` that cannot be used is a
 :class:`~tracker.errors.UserError` naming the file and line, before any
 frame is read: a silently ignored time would cost 20 arcsec.
+
+A frame without a recorded ``t_ns`` is stamped on a fixed time base: the
+replay's start on the monotonic clock plus its index times the frame
+interval (``1 / fps``, or ``interval_s`` when replaying as fast as possible).
+Not the time it was read: tracking predicts the next frame's stars from the
+time between frames, so a clock reading would make the answer depend on how
+loaded the machine is.
 """
 
 from __future__ import annotations
@@ -96,16 +103,18 @@ class ReplaySource:
     size into errors rather than passing them on. ``max_size`` (width,
     height; default: that of ``expect_shape``) is the largest image decoded
     (tracker.capture.imagefile); a larger one is an error read from its
-    header alone.
+    header alone. ``interval_s``: the time between frames without a recorded
+    ``t_ns`` when ``fps`` is 0 (module docstring), s.
     """
 
     def __init__(self, paths: Sequence[str | Path], *, loop: bool = False, fps: float = 0.0,
                  bits16_depth: int = 10, expect_shape: tuple[int, int] | None = None,
-                 max_size: tuple[int, int] | None = None):
+                 max_size: tuple[int, int] | None = None, interval_s: float = 0.1):
         self.files = expand_paths(paths)
         self.metadata = read_metadata(paths)
         self.loop = loop
         self.period_ns = int(1e9 / fps) if fps > 0 else 0
+        self.step_ns = self.period_ns or round(interval_s * 1e9)
         self.bits16_depth = bits16_depth
         self.expect_shape = expect_shape
         if max_size is None and expect_shape is not None:
@@ -116,7 +125,7 @@ class ReplaySource:
     def __len__(self) -> int:
         return len(self.files)
 
-    def _load(self, index: int, path: Path) -> Frame | FrameError:
+    def _load(self, index: int, path: Path, t_nominal_ns: int) -> Frame | FrameError:
         try:
             image, depth = read_image(path, self.bits16_depth, self.max_size)
         except ImageReadError as exc:
@@ -128,14 +137,14 @@ class ReplaySource:
         meta = self.metadata.get(path.resolve(), {})
         t_ns = meta.get("t_ns")
         return Frame(index, path.name, image, depth,
-                     int(t_ns) if isinstance(t_ns, int) else time.monotonic_ns(),
+                     int(t_ns) if isinstance(t_ns, int) else t_nominal_ns,
                      exposure_us=meta.get("exposure_us"), gain=meta.get("gain"),
                      t_tai_ns=meta.get("t_tai_ns"),
                      observer_velocity_km_s=meta.get("observer_velocity_km_s"))
 
     def __iter__(self) -> Iterator[Frame | FrameError | Waiting]:
         index = 0
-        next_due = time.monotonic_ns()
+        start_ns = next_due = time.monotonic_ns()
         while not self._closed and self.files:
             for path in self.files:
                 if self._closed:
@@ -143,7 +152,7 @@ class ReplaySource:
                 if self.period_ns:
                     yield from self._wait_until(next_due)
                     next_due += self.period_ns
-                yield self._load(index, path)
+                yield self._load(index, path, start_ns + index * self.step_ns)
                 index += 1
             if not self.loop:
                 return

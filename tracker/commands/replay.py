@@ -52,7 +52,9 @@ def register(sub, common) -> None:
     p.add_argument("--quiet", action="store_true", help="no line per frame, only the summary")
     p.add_argument("--loop", action="store_true", help="start again after the last file")
     p.add_argument("--fps", type=non_negative, default=0.0,
-                   help="pace frames at this rate (Hz; 0 = as fast as possible)")
+                   help="pace frames at this rate (Hz; 0 = as fast as possible); frames "
+                   "without a recorded t_ns are stamped 1/fps apart (at 0: "
+                   "capture.replay_interval_s)")
     p.set_defaults(func=run)
 
 
@@ -176,7 +178,8 @@ def run(args, cfg) -> int:
         raise UserError("--report needs a replay that ends: leave out --loop")
     cam = cfg.camera
     source = ReplaySource(args.frames, loop=args.loop, fps=args.fps,
-                          bits16_depth=cam.bit_depth, max_size=(cam.width, cam.height))
+                          bits16_depth=cam.bit_depth, max_size=(cam.width, cam.height),
+                          interval_s=cfg.capture.replay_interval_s)
     pipeline = Pipeline(cfg)
     if cfg.identify.enabled:
         pipeline.solver  # load catalogue and database now, not inside frame 1's time  # noqa: B018
