@@ -9,7 +9,9 @@ import pytest
 
 from tracker.config import SimConfig
 from tracker.sim import apply_seed_noise, noise_power, render_points, snr_db
-from tracker.sim.seednoise import param_for_snr
+from tracker.sim.frame import sim_psf, star_stamps
+from tracker.sim.psf import stamp_pixels
+from tracker.sim.seednoise import delivered_moments, param_for_snr
 
 QUIET = SimConfig(dark_current_e_s=0.0, hot_pixel_fraction=0.0, cosmic_ray_rate_cm2_s=0.0,
                   glare_e=0.0, read_noise_e=0.0, gain_e_per_adu=1.0, bias_adu=100.0)
@@ -165,3 +167,49 @@ def test_speckled_star_that_rounds_away_is_not_counted_detectable():
                           np.random.default_rng(3), noise_model="speckle", bit_depth=8)
     assert frame.image[15:26, 15:26].max() <= 1          # the star is (almost) gone
     assert frame.stars["mf_snr"][0] < 3.0
+
+
+@pytest.mark.parametrize("model, param, clean", [
+    ("gaussian_poisson", 0.15, 0.0), ("gaussian_poisson", 0.15, 0.35),
+    ("salt_pepper", 0.05, 0.3), ("speckle", 0.15, 0.4)])
+def test_delivered_moments_are_the_8bit_pixels(model, param, clean):
+    """Mean and variance of 200 000 delivered 8-bit pixels of one clean value against
+    delivered_moments: standard errors of the mean 0.001 and of the variance 2-3 %
+    of it at most; the clip at 1 after the Poisson stage is left out of the model."""
+    grey = np.full((500, 400), clean)
+    noisy, _ = apply_seed_noise(grey, model, np.random.default_rng(5), param=param)
+    delivered = np.rint(noisy * 255.0) / 255.0
+    mean, variance = delivered_moments(model, param, np.array([clean]))
+    assert delivered.mean() == pytest.approx(mean[0], abs=0.003)
+    assert delivered.var() == pytest.approx(variance[0], rel=0.02)
+
+
+def test_matched_filter_snr_under_clipped_noise_is_what_the_pixels_give():
+    """A star on a black sky under Gaussian+Poisson variance 0.15 (half the noise clipped
+    at 0): the truth's mf_snr is no more than what a matched filter at the star, weighted
+    by the delivered signal over the sky's variance, reads on average over 300 noise
+    draws (8.9). Counting the star's own light against (I - S)^2 gave 10.0, more than
+    any filter reads."""
+    rng = np.random.default_rng(8)
+    cfg = SimConfig()
+    x, y = 15.3, 15.6
+    first = render_points((31, 31), [x], [y], [20000.0], cfg, rng,
+                          noise_model="gaussian_poisson")
+    snr = first.stars["mf_snr"][0]
+    assert 6.0 < snr < 12.0
+    full = first.truth["noise"]["full_scale_e"]
+    own = star_stamps([x], [y], sim_psf(cfg))
+    rows, cols, inside = stamp_pixels((31, 31), own)
+    light = np.where(inside, own.values * 20000.0 / full, 0.0)[0]
+    lit, _ = delivered_moments("gaussian_poisson", 0.15, np.minimum(light, 1.0))
+    sky, sky_var = delivered_moments("gaussian_poisson", 0.15, np.zeros(1))
+    weights = (lit - sky[0]) / sky_var[0]
+    norm = np.sqrt(np.sum(weights ** 2) * sky_var[0])
+    reads = []
+    for _ in range(300):
+        image = render_points((31, 31), [x], [y], [20000.0], cfg, rng,
+                              noise_model="gaussian_poisson").image / 255.0
+        reads.append(np.sum(weights * (image[rows[0], cols[0]] - sky[0])) / norm)
+    # the truth counts each pixel's larger noise, with or without the star (its wings
+    # lift the clipped noise): at most a fifth under the reading, never over it
+    assert snr <= np.mean(reads) <= 1.2 * snr

@@ -8,7 +8,10 @@ Tuned on (the conditions the detector was developed against):
 
 * ``seed/<model>/<snr> dB``: the seed method's four noise models (8-bit,
   0..1 scale) at image SNRs across -5..+3 dB set through each model's
-  parameter, over random attitudes. Detectable: matched-filter SNR >= 7.
+  parameter, over random attitudes. Detectable: matched-filter SNR >= 7,
+  of what the delivered frame shows of the star (tracker.sim.frame: the
+  change of its pixels' mean against their noise; clipped noise passes on
+  only part of a faint star's light).
 * ``seed-written/<model>/...``: the same models at the parameters the
   seed method wrote down (Gaussian+Poisson variance 0.15, salt and pepper
   at density 0.05, speckle variance 0.15, glare of amplitude 1 and radius

@@ -263,7 +263,7 @@ class DefaultDetector:
         contrast = (cfg.impulse_contrast if cfg.impulse_contrast is not None
                     else 0.5 * (1.0 + psf_contrast(_FIRST_PASS_SIGMA_PX, worst_phase=True)))
         self.impulses = ImpulseFilter(layout, contrast, cfg.max_impulses, np.uint16,
-                                      cfg.threads)
+                                      cfg.threads, full_scale=self.saturation)
         self.filter_slabs = SlabRunner(layout.rows, layout.cols, _kernel_half(SIGMA_MAX_PX),
                                        cfg.threads, np.float32)
         self.peaks = PeakFinder(layout, 1, cfg.deblend_dip_sigma, cfg.max_pixels_above,

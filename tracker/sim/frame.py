@@ -16,11 +16,17 @@ Noise models (``SimConfig.noise_model``):
 
 Per-star expected SNR, for a star's own light s_i in pixel i:
 ``peak_snr`` = s_peak / noise at that pixel, ``mf_snr`` = sqrt(sum_i
-s_i^2 / noise_i^2) (the matched-filter SNR), where the noise power is
-s + background + read^2 + gain^2/12 in e- for the sensor models and
-:func:`tracker.sim.seednoise.noise_power` for the seed models, floored at
-the 8-bit rounding noise LSB^2/12: light that rounds away is not
-detectable, whatever the multiplicative (speckle) noise on it.
+s_i^2 / noise_i^2) (the matched-filter SNR), where for the sensor models
+s_i is the star's light and the noise power s + background + read^2 +
+gain^2/12 in e-; for the seed models s_i is the change of the pixel's
+delivered mean that the star's light makes and the noise power the larger
+of the delivered value's variances with and without the star's light
+(:func:`tracker.sim.seednoise.delivered_moments`: clipped noise passes on
+only part of a faint star's light, and a detector's threshold is set by
+the sky's noise even where a clipped core is quieter; speckle's noise is
+the star's own), floored at the 8-bit rounding noise LSB^2/12: light that
+rounds away is not detectable, whatever the multiplicative (speckle) noise
+on it.
 """
 
 from __future__ import annotations
@@ -192,11 +198,21 @@ def render_points(shape: tuple[int, int], xs, ys, electrons, sim_cfg: SimConfig,
                          & (stars["y"] >= -0.5) & (stars["y"] <= height - 0.5))
 
     if model in seednoise.SEED_MODELS:
-        image, info, power_of, total = _seed_frame(signal, model, target, sim_cfg, rng)
+        image, info, power_of, total, glare = _seed_frame(signal, model, target, sim_cfg, rng)
         own = own / info["full_scale_e"]
-        # the part of each star's light that survives the clip at full scale
+        # the part of each star's light that survives the clip at full scale, and what
+        # the delivered frame shows of it: the change of its pixels' mean, against
+        # their spread (seednoise.delivered_moments)
         under, _ = _gather(total, stamps)
-        own = np.minimum(under, 1.0) - np.minimum(under - own, 1.0)
+        lit, unlit = np.minimum(under, 1.0), np.minimum(under - own, 1.0)
+        own = lit - unlit
+        glare_under = None if glare is None else _gather(glare, stamps)[0]
+        mean_lit, variance = seednoise.delivered_moments(model, info["param"], lit,
+                                                         glare_under)
+        mean_unlit, variance_unlit = seednoise.delivered_moments(model, info["param"], unlit,
+                                                                 glare_under)
+        seen = mean_lit - mean_unlit
+        variance = np.maximum(variance, variance_unlit)
         depth = 8
     else:
         depth = bit_depth
@@ -204,10 +220,12 @@ def render_points(shape: tuple[int, int], xs, ys, electrons, sim_cfg: SimConfig,
             signal, model, sim_cfg, rng, depth, sky_e, pixel_size_um, light_e, deposits)
     values, inside = _gather(power_of, stamps)
     if model in seednoise.SEED_MODELS:
-        power = np.maximum(values, seednoise.QUANT_POWER)
+        power = np.maximum(variance, seednoise.QUANT_POWER)
+        stars["peak_snr"], stars["mf_snr"], _ = _star_snrs(seen, power, inside)
+        peak = _star_snrs(own, power, inside)[2]
     else:
         power = values + (own if model == "realistic" else 0.0)
-    stars["peak_snr"], stars["mf_snr"], peak = _star_snrs(own, power, inside)
+        stars["peak_snr"], stars["mf_snr"], peak = _star_snrs(own, power, inside)
     if len(own):
         at_peak = np.argmax(np.where(inside, own, -1.0).reshape(len(own), -1), axis=1)
         stars["bg_power"] = values.reshape(len(own), -1)[np.arange(len(own)), at_peak]
@@ -240,7 +258,8 @@ def _star_record(row) -> dict:
 
 def _seed_frame(signal: np.ndarray, model: str, target: float | None, sim_cfg: SimConfig,
                 rng: np.random.Generator):
-    """8-bit frame under a seed noise model; returns image, info, per-pixel noise power."""
+    """8-bit frame under a seed noise model; returns image, info, per-pixel noise power,
+    the clean light before the clip at full scale and the unit glare profile (or None)."""
     # star light (e-) that fills the 0..1 scale
     full_scale_e = sensor.sensor_scale(sim_cfg, 8).gain_e_per_adu * 255.0 / sim_cfg.seed_star_gain
     stars = signal / full_scale_e
@@ -266,7 +285,7 @@ def _seed_frame(signal: np.ndarray, model: str, target: float | None, sim_cfg: S
     info["sky"] = float(sky)
     info["full_scale"] = (1.0 - sky) * (1.0 - 1e-9)   # a star that reaches it is clipped
     power = seednoise.noise_power(model, param, clean, glare)
-    return image, info, power, stars + sky
+    return image, info, power, stars + sky, glare
 
 
 def _sensor_frame(signal: np.ndarray, model: str, sim_cfg: SimConfig,

@@ -27,8 +27,8 @@ import numpy as np
 from tracker.normal import erf
 from tracker.sim.sensor import glare_field
 
-__all__ = ["SEED_MODELS", "SNR_DEFINITION", "apply_seed_noise", "noise_power",
-           "param_for_snr", "sky_for_snr", "snr_db"]
+__all__ = ["SEED_MODELS", "SNR_DEFINITION", "apply_seed_noise", "delivered_moments",
+           "noise_power", "param_for_snr", "sky_for_snr", "snr_db"]
 
 SEED_MODELS = ("gaussian_poisson", "salt_pepper", "speckle", "glare")
 SNR_DEFINITION = ("10*log10(sum(S^2)/sum((I-S)^2)) over the frame; S = noise-free star "
@@ -72,6 +72,47 @@ def noise_power(model: str, param: float, clean: np.ndarray,
     if model == "gaussian_poisson":
         return second + mean / _LEVELS
     return second + np.minimum(QUANT_POWER, s * s)
+
+
+def delivered_moments(model: str, param: float, clean: np.ndarray,
+                      glare: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and variance of the delivered value (0..1) of a pixel of clean value ``clean``.
+
+    What a detector sees of a star: its signal in a pixel is the change of
+    the delivered mean its light makes, mean(b + a) - mean(b), and the noise
+    is the delivered value's spread about that mean. Noise clipped at black
+    takes part of a faint star's light with it (on a black sky under
+    Gaussian+Poisson variance 0.15 half of it: the clip at 0 moves the
+    mean by only P(0 < s + noise < 1) per unit of light) and puts a bias in
+    :func:`noise_power`'s (I - S)^2 that a background estimate removes, so
+    neither the star's own light nor that power is its detectability.
+
+    * ``gaussian_poisson``: exact for C = clip(s + N(0, var)) (module doc),
+      then Var = Var(C) + E[C] / 255 from the Poisson stage (its clip at 1
+      left out: it touches only pixels near full scale).
+    * ``salt_pepper``: exact: mean (1 - d) round(s) + d / 2.
+    * ``speckle``: the clipped Gaussian's moments plus the rounding term of
+      :func:`noise_power`.
+    * ``glare``: the glare counts as the noise it is in :func:`noise_power`
+      (a detector has to tell a star from the glare under it); the mean is
+      the clean value.
+
+    The caller floors the variance at :data:`QUANT_POWER` as it does the power.
+    """
+    _check_model(model)
+    s = np.asarray(clean, dtype=np.float64)
+    if model == "salt_pepper":
+        r = _rounded(s)
+        mean = (1.0 - param) * r + 0.5 * param
+        return mean, (1.0 - param) * r * r + 0.5 * param - mean * mean
+    if model == "glare":
+        return s, noise_power(model, param, s, glare)
+    spread = np.sqrt(param) * (1.0 if model == "gaussian_poisson" else s)
+    second, mean = _clipped_moments(s, spread)
+    variance = np.maximum(second - (mean - s) ** 2, 0.0)
+    if model == "gaussian_poisson":
+        return mean, variance + mean / _LEVELS
+    return mean, variance + np.minimum(QUANT_POWER, s * s)
 
 
 def _clipped_moments(s: np.ndarray, spread: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
