@@ -26,7 +26,13 @@ handled, sigma 3.5 px):
    (tracker.detect.psf); ``detect.psf_sigma_px`` is only the start. The
    impulse candidates are then tested again against this PSF (a sharper
    cut now that the stars' own sharpness is known), each replaced pixel
-   taking the median of its cleaned neighbourhood.
+   taking the median of its cleaned neighbourhood. A frame with too few
+   bright stars for it (a wide PSF's peaks are low) is searched first (steps
+   5-7), and the stars kept at SNR >= 10 measure the PSF; the lone impulse
+   candidates (no track beside them) are then judged against it, the stars
+   that were mostly such a pixel dropped, and the frame searched again if
+   the PSF is far from the one it was searched with. With no measurement
+   the frame keeps the PSF it was searched with, and ``psf_stars`` says 0.
 5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
    float32 copy (OpenCV's Gaussian is fastest on float32). The background is
    not subtracted from the whole image: the threshold image carries it
@@ -102,8 +108,6 @@ from tracker.detect.psf import (
     SIGMA_MIN_PX,
     PsfMeter,
     PsfTracker,
-    combine_stars,
-    pixel_tensor_to_optics,
 )
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.roughness import StarRoughness
@@ -152,9 +156,9 @@ _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, 
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
 _SHARPEST_RING = 0.5 * psf_ring(SIGMA_MIN_PX)
 _FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
-_SECOND_LOOKS = 2              # searches again with a PSF measured on the candidates
-_SECOND_LOOK_CHANGE = math.log(1.25)  # ... when it is this far from the one used
-_SECOND_LOOK_SNR = 20.0        # ... from candidates this significant
+_SECOND_LOOK_SNR = 10.0        # the PSF measured on candidates this significant ...
+_SECOND_LOOK_CHANGE = math.log(1.25)  # ... searched again with if this far from the one used
+_ELONGATION_SNR = 20.0         # spots this significant tell a trailed frame
 _SKY_RING_SIGMAS = 3.5         # a candidate's surroundings: from this many PSF sigmas ...
 _SKY_RING_WIDTH = 2            # ... outward by this many pixels
 _TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is textured,
@@ -442,28 +446,65 @@ class DefaultDetector:
         self._configure(self.psf.sigma_px)
         self._refine_impulses()
         count = self._search()
-        for _ in range(_SECOND_LOOKS):
-            # too few bright stars for step 4: the centroided candidates measure the PSF,
-            # and a frame whose PSF is far from the one used is searched again with it
-            if not self.measure_psf or self.psf.stars > 0:
-                break
-            measured = self._psf_from_candidates()
-            if measured is None or abs(math.log(measured.sigma_px / self.psf_sigma_used)) < (
-                    _SECOND_LOOK_CHANGE):
-                break
-            self.psf = self.psf_tracker.update(measured)
-            self._configure(self.psf.sigma_px)
-            count = self._search()
+        if self.measure_psf and self.psf.stars == 0:
+            count = self._second_look(count)
         timer.stop()
         reason = (Reason.CROWDED if self.peaks.crowded
                   else Reason.TOO_MANY if self.counters["left_out"] else None)
         return self.table.result(count, reason, self.counters, timer.ms, self.psf)
 
+    def _second_look(self, count: int) -> int:
+        """Too few bright stars for step 4: the PSF measured on the centroided candidates;
+        with it the impulses are judged again and, if that replaced pixels or the PSF is
+        far from the one searched with, the frame searched again. Returns the star count.
+
+        Without a measurement the frame keeps the PSF it was searched with (the
+        configured start, or the estimate of earlier frames), and its impulses stay
+        judged against the sharpest PSF handled.
+        """
+        self.timer.start("psf")
+        measured = self._psf_from_candidates(count)
+        if measured is None:
+            return count
+        searched_px = self.psf_sigma_used
+        self.psf = self.psf_tracker.update(measured)
+        self._configure(self.psf.sigma_px)
+        if self.cfg.impulse_contrast is None:
+            hit, excess = self.impulses.retest_lone(self.input.padded, self.impulse_contrast,
+                                                    self.impulse_ring, mirror_pad=self.float_pad)
+            self.counters["impulse_pixels"] += len(hit)
+            self.counters["hot_pixels"] += len(hit)
+            count = self._drop_impulses(count, hit, excess)
+        if abs(math.log(self.psf_sigma_used / searched_px)) >= _SECOND_LOOK_CHANGE:
+            count = self._search()
+        return count
+
+    def _drop_impulses(self, count: int, hit: np.ndarray, excess: np.ndarray) -> int:
+        """Drop the stars of the table (its first ``count``) that were mostly a pixel
+        found an impulse since: one of ``hit`` (padded flat indices) in the 3x3 around
+        the star's centre, standing above its median (``excess``, ADU) by at least half
+        the star's peak. Returns the new count."""
+        if len(hit) == 0 or count == 0:
+            return count
+        s = self.table.stars
+        centre = self.layout.flat_index(np.rint(s["y"][:count]).astype(np.intp),
+                                        np.rint(s["x"][:count]).astype(np.intp))
+        near = centre[:, None] + self.impulses.window_offsets[None, :]
+        which = np.searchsorted(hit, near)        # hit is sorted (raster order)
+        which = np.minimum(which, len(hit) - 1)
+        on = (hit[which] == near) & (excess[which] >= 0.5 * s["peak"][:count, None])
+        keep = np.flatnonzero(~on.any(axis=1))
+        if len(keep) == count:
+            return count
+        s[:len(keep)] = s[keep]
+        return len(keep)
+
     def _refine_impulses(self) -> None:
         """The impulse stage's second pass, judged against the PSF in use if this frame's
         stars measured it; else against the sharpest PSF the detector handles (a PSF
         from elsewhere may be wider than the frame's stars, and a pass for it would take
-        a sharper star's pixels for impulses and clear them as a track)."""
+        a sharper star's pixels for impulses and clear them as a track). Run again after
+        a second look has measured the PSF, it tests the same candidates once more."""
         measured = self.psf.stars > 0
         contrast = (self.cfg.impulse_contrast if self.cfg.impulse_contrast is not None
                     else self.impulse_contrast if measured else self.impulses.contrast)
@@ -565,32 +606,26 @@ class DefaultDetector:
         timer.start("centroid")
         return self._measure(n)
 
-    def _psf_from_candidates(self):
-        """The PSF from the centroided candidates' windowed moments (tracker.detect.psf).
-
-        For a Gaussian spot the moments under the window's Gaussian weight
-        give its covariance exactly (C = (M^-1 - I / w^2)^-1); the spots used
-        are significant (SNR >= 20), unsaturated, unblended and round enough.
-        Windows cut for a PSF much narrower than the stars' truncate them, so
-        a wide PSF is approached in a step or two.
-        """
-        n = self.counters["candidates"]
-        if n == 0:
+    def _psf_from_candidates(self, count: int):
+        """The PSF measured (tracker.detect.psf's meter) on the frame's ``count`` stars as
+        kept (brightest first): those at SNR >= _SECOND_LOOK_SNR, neither saturated,
+        blended, on the edge nor extended. The shape tests have set aside the
+        particles' sharp spots and tracks, which would otherwise measure a PSF as
+        sharp as their charge."""
+        s = self.table.stars[:count]
+        bad = StarFlag.SATURATED | StarFlag.BLENDED | StarFlag.EDGE | StarFlag.EXTENDED
+        use = np.flatnonzero((s["snr"] >= _SECOND_LOOK_SNR) & ((s["flags"] & bad) == 0))
+        m = min(len(use), _PSF_STARS)
+        if m == 0:
             return None
-        v = self.centroider.v
-        w2 = self.sigma ** 2
-        use = ((v["snr"][:n] >= _SECOND_LOOK_SNR) & (v["raw_peak"][:n] < self.saturation)
-               & ~self.peaks.blended[:n])
-        mxx, myy, mxy = v["mxx"][:n][use], v["myy"][:n][use], v["mxy"][:n][use]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            det = mxx * myy - mxy * mxy
-            a, b, c = myy / det - 1.0 / w2, mxx / det - 1.0 / w2, -mxy / det
-            det_c = a * b - c * c
-            sigma, ellipticity, _ = pixel_tensor_to_optics(b / det_c, a / det_c, -c / det_c)
-        good = (np.isfinite(sigma) & (ellipticity < 0.5) & (sigma >= SIGMA_MIN_PX)
-                & (sigma <= SIGMA_MAX_PX) & (det > 0) & (det_c > 0))
-        return combine_stars(sigma[good], ellipticity[good], (b / det_c)[good],
-                             (a / det_c)[good], (-c / det_c)[good], self.cfg.psf_min_stars)
+        use = use[:m]               # the table is most significant first
+        rows = np.rint(s["y"][use]).astype(np.intp)
+        cols = np.rint(s["x"][use]).astype(np.intp)
+        self.psf_cand[:m] = self.layout.flat_index(rows, cols)
+        self.grid.at(self.noise, self.psf_cand[:m], self.psf_noise[:m])
+        return self.psf_meter.measure(m, self.input.padded, self.bg_pad, self.psf_cand,
+                                      self.psf_noise, self.saturation, self.psf.sigma_px,
+                                      self._edge_distance(rows, cols))
 
     def _bright_peaks(self) -> tuple[np.ndarray, np.ndarray]:
         """The brightest local maxima (padded flat indices, pixel noise), brightest first.
@@ -1004,7 +1039,7 @@ class DefaultDetector:
         stars, does not see it); particle tracks and a crescent's pieces point every
         way, and round stars not at all.
         """
-        use = ((v["snr"][:n] >= _SECOND_LOOK_SNR) & (v["raw_peak"][:n] < self.saturation)
+        use = ((v["snr"][:n] >= _ELONGATION_SNR) & (v["raw_peak"][:n] < self.saturation)
                & ~self.peaks.blended[:n])
         if np.count_nonzero(use) < 5:
             return 0.0
