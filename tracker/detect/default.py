@@ -149,7 +149,8 @@ _NARROW_SNR = 50.0             # ... at this SNR is a particle's charge, not a s
 _SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
 _CLIPPED_AREA = 0.6           # a saturated spot's flux/peak under this x the PSF's is sharp
 _CLIP_SIGMAS = 4.0             # full scale this many pixel noises above the background
-_WIDTH_SPREADS = 4.0           # below sharp_min_snr: narrower than a star by this many spreads
+_WIDTH_SPREADS = 4.0           # below sharp_min_snr: narrower than a star by this many spreads,
+_MEASURED_WIDTH_SPREADS = 3.0  # ... or this many when the frame's stars measured its PSF
 _REMNANT_WIDTH = 0.85          # a spot this narrow and ...
 _REMNANT_ROUGH = 3.0           # ... this rough (x a star's of its flux) is a track's remnant
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
@@ -878,10 +879,13 @@ class DefaultDetector:
         # whatever the spot's own width): one narrower than ``sharp_size_ratio``, and
         # than a star by more than _WIDTH_SPREADS of that spread, is a hot pixel or a
         # particle's hit the impulse stage left (its noisy 3x3 median or neighbours
-        # made it look like a star's light)
+        # made it look like a star's light). Against a PSF this frame's stars measured
+        # a star's width is known, and 3 spreads suffice (a faint star is lost 1 time
+        # in 700); against one from elsewhere the frame's stars may be sharper than it
         if self.speckle_fit is None:
             sharp |= spot & (width < self.cfg.sharp_size_ratio) & (
-                (1.0 - width) * known > _WIDTH_SPREADS * math.sqrt(2.0))
+                (1.0 - width) * known > math.sqrt(2.0) * (
+                    _MEASURED_WIDTH_SPREADS if self.psf.stars else _WIDTH_SPREADS))
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
