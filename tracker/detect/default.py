@@ -32,7 +32,9 @@ handled, sigma 3.5 px):
    candidates (no track beside them) are then judged against it, the stars
    that were mostly such a pixel dropped, and the frame searched again if
    the PSF is far from the one it was searched with. With no measurement
-   the frame keeps the PSF it was searched with, and ``psf_stars`` says 0.
+   the frame keeps the PSF it was searched with, and ``psf_stars`` says 0;
+   three agreeing stars, too few to measure it, still bound it from below
+   for the lone impulses.
 5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
    float32 copy (OpenCV's Gaussian is fastest on float32). The background is
    not subtracted from the whole image: the threshold image carries it
@@ -159,6 +161,7 @@ _SHARPEST_RING = 0.5 * psf_ring(SIGMA_MIN_PX)
 _FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
 _SECOND_LOOK_SNR = 10.0        # the PSF measured on candidates this significant ...
 _SECOND_LOOK_CHANGE = math.log(1.25)  # ... searched again with if this far from the one used
+_LONE_STARS = 3                # ... or, this many, bound it for the lone impulses
 _ELONGATION_SNR = 20.0         # spots this significant tell a trailed frame
 _SKY_RING_SIGMAS = 3.5         # a candidate's surroundings: from this many PSF sigmas ...
 _SKY_RING_WIDTH = 2            # ... outward by this many pixels
@@ -177,6 +180,18 @@ _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its ta
 def effective_sigma(psf_sigma_px: float) -> float:
     """Sigma of a Gaussian PSF after integration over a square pixel, px."""
     return math.sqrt(psf_sigma_px ** 2 + 1.0 / 12.0)
+
+
+def _impulse_cut(sigma_px: float) -> tuple[float, float]:
+    """(contrast, ring) of tracker.detect.impulse's tests for a PSF of ``sigma_px``.
+
+    The contrast is halfway between an impulse's over its 3x3 median and that
+    of a centred star a tenth sharper than the PSF at its sharpest sub-pixel
+    phase; the ring is half the light a star a tenth sharper, at its sharpest
+    phase, puts in the eight neighbours of its peak (a hot pixel's hold noise).
+    """
+    sharper = _IMPULSE_PSF_MARGIN * sigma_px
+    return 0.5 * (1.0 + psf_contrast(sharper, worst_phase=True)), 0.5 * psf_ring(sharper)
 
 
 def _sigma_step_of(sigma_px: float) -> int:
@@ -386,13 +401,7 @@ class DefaultDetector:
         filter_gain = float(np.sum(kernel ** 2))
         peak_threshold = gaussian_peak_threshold(
             self.cfg.false_alarms_per_frame, self.layout.rows * self.layout.cols, kernel)
-        # halfway between an impulse's contrast over its 3x3 median and that of a centred
-        # star a tenth sharper than the PSF at its sharpest sub-pixel phase
-        impulse_contrast = 0.5 * (1.0 + psf_contrast(_IMPULSE_PSF_MARGIN * sigma_px,
-                                                     worst_phase=True))
-        # a hot pixel's neighbours hold noise; those of a star a tenth sharper than the
-        # PSF, at its sharpest phase, more than twice this
-        impulse_ring = 0.5 * psf_ring(_IMPULSE_PSF_MARGIN * sigma_px)
+        impulse_contrast, impulse_ring = _impulse_cut(sigma_px)
         roughness = StarRoughness.of(self.centroider.radius, sigma_px)
         return ((filter_gain, peak_threshold, impulse_contrast, impulse_ring,
                  *roughness.values()),
@@ -455,30 +464,44 @@ class DefaultDetector:
         return self.table.result(count, reason, self.counters, timer.ms, self.psf)
 
     def _second_look(self, count: int) -> int:
-        """Too few bright stars for step 4: the PSF measured on the centroided candidates;
-        with it the impulses are judged again and, if that replaced pixels or the PSF is
-        far from the one searched with, the frame searched again. Returns the star count.
+        """Too few bright stars for step 4: the PSF measured on the stars the search kept
+        (:meth:`_psf_from_candidates`); with it the lone impulses are judged again and,
+        if it is far from the PSF searched with, the frame searched again. Returns the
+        star count.
 
         Without a measurement the frame keeps the PSF it was searched with (the
-        configured start, or the estimate of earlier frames), and its impulses stay
-        judged against the sharpest PSF handled.
+        configured start, or the estimate of earlier frames). Fewer agreeing stars
+        than ``psf_min_stars`` (but ``_LONE_STARS``) do not measure it, but say the
+        frame's stars are no sharper than the sharpest of them, and the lone
+        impulses are judged against that; with fewer still they stay judged against
+        the sharpest PSF handled.
         """
         self.timer.start("psf")
         measured = self._psf_from_candidates(count)
         if measured is None:
             return count
+        if measured.stars < self.cfg.psf_min_stars:
+            return self._retest_lone(count, float(self.psf_meter.last_stars()[1].min()))
         searched_px = self.psf_sigma_used
         self.psf = self.psf_tracker.update(measured)
         self._configure(self.psf.sigma_px)
-        if self.cfg.impulse_contrast is None:
-            hit, excess = self.impulses.retest_lone(self.input.padded, self.impulse_contrast,
-                                                    self.impulse_ring, mirror_pad=self.float_pad)
-            self.counters["impulse_pixels"] += len(hit)
-            self.counters["hot_pixels"] += len(hit)
-            count = self._drop_impulses(count, hit, excess)
+        count = self._retest_lone(count, self.psf_sigma_used)
         if abs(math.log(self.psf_sigma_used / searched_px)) >= _SECOND_LOOK_CHANGE:
             count = self._search()
         return count
+
+    def _retest_lone(self, count: int, sigma_px: float) -> int:
+        """Judge the lone impulse candidates again against a PSF of ``sigma_px``
+        (tracker.detect.impulse.ImpulseFilter.retest_lone) and drop the stars that were
+        mostly such a pixel; returns the new star count."""
+        if self.cfg.impulse_contrast is not None:
+            return count
+        contrast, ring = _impulse_cut(sigma_px)
+        hit, excess = self.impulses.retest_lone(self.input.padded, contrast, ring,
+                                                mirror_pad=self.float_pad)
+        self.counters["impulse_pixels"] += len(hit)
+        self.counters["hot_pixels"] += len(hit)
+        return self._drop_impulses(count, hit, excess)
 
     def _drop_impulses(self, count: int, hit: np.ndarray, excess: np.ndarray) -> int:
         """Drop the stars of the table (its first ``count``) that were mostly a pixel
@@ -626,7 +649,8 @@ class DefaultDetector:
         self.grid.at(self.noise, self.psf_cand[:m], self.psf_noise[:m])
         return self.psf_meter.measure(m, self.input.padded, self.bg_pad, self.psf_cand,
                                       self.psf_noise, self.saturation, self.psf.sigma_px,
-                                      self._edge_distance(rows, cols))
+                                      self._edge_distance(rows, cols),
+                                      min_stars=min(_LONE_STARS, self.cfg.psf_min_stars))
 
     def _bright_peaks(self) -> tuple[np.ndarray, np.ndarray]:
         """The brightest local maxima (padded flat indices, pixel noise), brightest first.
