@@ -471,8 +471,8 @@ class DefaultDetector:
 
         Without a measurement the frame keeps the PSF it was searched with (the
         configured start, or the estimate of earlier frames). Fewer agreeing stars
-        than ``psf_min_stars`` (but ``_LONE_STARS``) do not measure it, but say the
-        frame's stars are no sharper than the sharpest of them, and the lone
+        than ``psf_min_stars``, but at least ``_LONE_STARS``, do not measure it but
+        say the frame's stars are no sharper than the sharpest of them, and the lone
         impulses are judged against that; with fewer still they stay judged against
         the sharpest PSF handled.
         """
@@ -527,8 +527,7 @@ class DefaultDetector:
         """The impulse stage's second pass, judged against the PSF in use if this frame's
         stars measured it; else against the sharpest PSF the detector handles (a PSF
         from elsewhere may be wider than the frame's stars, and a pass for it would take
-        a sharper star's pixels for impulses and clear them as a track). Run again after
-        a second look has measured the PSF, it tests the same candidates once more."""
+        a sharper star's pixels for impulses and clear them as a track)."""
         measured = self.psf.stars > 0
         contrast = (self.cfg.impulse_contrast if self.cfg.impulse_contrast is not None
                     else self.impulse_contrast if measured else self.impulses.contrast)
