@@ -188,6 +188,62 @@ def test_a_frame_of_faint_stars_of_a_wide_psf_is_searched_again_with_it():
     assert np.mean(d.min(axis=1) < 1.5) >= 0.95
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_faint_stars_of_a_wide_psf_measure_it_and_their_hot_pixels_are_not_stars(seed):
+    """40 stars of sigma 2.2 px at matched-filter SNR 15 (peak SNR 3: none for the
+    bright-star pass) among 700 hot pixels of a few hundred e-: the stars the first search
+    kept measure the PSF (within 5 %, from 5 or more of them), and the hot pixels judged
+    against it are no stars. Judged against the sharpest PSF handled, a hot pixel whose
+    3x3 median noise lifted stands above it by less than a star's sharpest contrast; with
+    the bright pixels as the PSF's candidates the frame measured no PSF (or 1.9-2.05 px
+    from five or six spots) and kept 1-3 hot pixels as stars."""
+    sim = dataclasses.replace(SimConfig(), cosmic_ray_rate_cm2_s=0.0, hot_pixel_fraction=2e-3,
+                              hot_pixel_dark_e_s=1500.0)
+    rng = np.random.default_rng(seed)
+    shape = (600, 600)
+    xs, ys = rng.uniform(30, 570, 40), rng.uniform(30, 570, 40)
+    frame = render_points(shape, xs, ys, np.full(40, 450.0), sim, rng,
+                          noise_model="realistic", psf_sigma_px=2.2)
+    assert frame.stars["peak_snr"].max() < 5
+    hot = np.array([(s["x"], s["y"]) for s in frame.false_sources if s["kind"] == "hot_pixel"])
+    assert len(hot) > 500
+    result = make_detector(CFG, shape, 10).detect(frame.image)
+    assert result.psf_sigma_px == pytest.approx(2.2, rel=0.05)
+    assert result.psf_stars >= 5
+    on_hot = np.hypot(hot[:, :1] - result.stars["x"][None, :],
+                      hot[:, 1:] - result.stars["y"][None, :]).min(axis=0) < 1.0
+    assert not on_hot.any()
+    d = np.hypot(xs[:, None] - result.stars["x"][None, :], ys[:, None] - result.stars["y"][None, :])
+    assert np.mean(d.min(axis=1) < 1.5) >= 0.95
+
+
+def test_too_few_stars_to_measure_the_psf_still_bound_it_for_their_hot_pixels():
+    """Ten frames of 4 stars of sigma 2.2 px at matched-filter SNR 20 among 330 hot pixels:
+    too few to measure the PSF (the frame says so: psf_stars 0, the configured 1.2 px
+    kept), but enough to say the frame's stars are no sharper than the sharpest of
+    them, and the lone hot pixels judged against that are no stars: 7 are kept over the
+    ten frames (21 judged against the sharpest PSF handled), and every star found."""
+    sim = dataclasses.replace(SimConfig(), cosmic_ray_rate_cm2_s=0.0, hot_pixel_fraction=1e-3,
+                              hot_pixel_dark_e_s=1500.0)
+    on_hot = found = 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        xs, ys = rng.uniform(30, 570, 4), rng.uniform(30, 570, 4)
+        frame = render_points((600, 600), xs, ys, np.full(4, 700.0), sim, rng,
+                              noise_model="realistic", psf_sigma_px=2.2)
+        hot = np.array([(s["x"], s["y"]) for s in frame.false_sources])
+        result = make_detector(CFG, (600, 600), 10).detect(frame.image)
+        assert result.psf_stars == 0 and result.psf_sigma_px == CFG.psf_sigma_px
+        on_hot += int(np.count_nonzero(np.hypot(hot[:, :1] - result.stars["x"][None, :],
+                                                hot[:, 1:] - result.stars["y"][None, :])
+                                       .min(axis=0) < 1.0))
+        d = np.hypot(xs[:, None] - result.stars["x"][None, :],
+                     ys[:, None] - result.stars["y"][None, :])
+        found += int(np.count_nonzero(d.min(axis=1) < 1.5))
+    assert on_hot <= 10
+    assert found == 40
+
+
 def test_the_replay_record_carries_the_psf_and_what_was_left_out():
     """tracker replay's per-frame record: the PSF used and its basis, and the stars beyond
     detect.max_stars (the flight computer and the overlay see only the kept ones)."""

@@ -26,7 +26,15 @@ handled, sigma 3.5 px):
    (tracker.detect.psf); ``detect.psf_sigma_px`` is only the start. The
    impulse candidates are then tested again against this PSF (a sharper
    cut now that the stars' own sharpness is known), each replaced pixel
-   taking the median of its cleaned neighbourhood.
+   taking the median of its cleaned neighbourhood. A frame with too few
+   bright stars for it (a wide PSF's peaks are low) is searched first (steps
+   5-7), and the stars kept at SNR >= 10 measure the PSF; the lone impulse
+   candidates (no track beside them) are then judged against it, the stars
+   that were mostly such a pixel dropped, and the frame searched again if
+   the PSF is far from the one it was searched with. With no measurement
+   the frame keeps the PSF it was searched with, and ``psf_stars`` says 0;
+   three agreeing stars, too few to measure it, still bound it from below
+   for the lone impulses.
 5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
    float32 copy (OpenCV's Gaussian is fastest on float32). The background is
    not subtracted from the whole image: the threshold image carries it
@@ -102,8 +110,6 @@ from tracker.detect.psf import (
     SIGMA_MIN_PX,
     PsfMeter,
     PsfTracker,
-    combine_stars,
-    pixel_tensor_to_optics,
 )
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.roughness import StarRoughness
@@ -145,16 +151,18 @@ _NARROW_SNR = 50.0             # ... at this SNR is a particle's charge, not a s
 _SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
 _CLIPPED_AREA = 0.6           # a saturated spot's flux/peak under this x the PSF's is sharp
 _CLIP_SIGMAS = 4.0             # full scale this many pixel noises above the background
-_WIDTH_SPREADS = 4.0           # below sharp_min_snr: narrower than a star by this many spreads
+_WIDTH_SPREADS = 4.0           # below sharp_min_snr: narrower than a star by this many spreads,
+_MEASURED_WIDTH_SPREADS = 3.0  # ... or this many when the frame's stars measured its PSF
 _REMNANT_WIDTH = 0.85          # a spot this narrow and ...
 _REMNANT_ROUGH = 3.0           # ... this rough (x a star's of its flux) is a track's remnant
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
 _SHARPEST_RING = 0.5 * psf_ring(SIGMA_MIN_PX)
 _FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
-_SECOND_LOOKS = 2              # searches again with a PSF measured on the candidates
-_SECOND_LOOK_CHANGE = math.log(1.25)  # ... when it is this far from the one used
-_SECOND_LOOK_SNR = 20.0        # ... from candidates this significant
+_SECOND_LOOK_SNR = 10.0        # the PSF measured on candidates this significant ...
+_SECOND_LOOK_CHANGE = math.log(1.25)  # ... searched again with if this far from the one used
+_LONE_STARS = 3                # ... or, this many, bound it for the lone impulses
+_ELONGATION_SNR = 20.0         # spots this significant tell a trailed frame
 _SKY_RING_SIGMAS = 3.5         # a candidate's surroundings: from this many PSF sigmas ...
 _SKY_RING_WIDTH = 2            # ... outward by this many pixels
 _TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is textured,
@@ -172,6 +180,18 @@ _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its ta
 def effective_sigma(psf_sigma_px: float) -> float:
     """Sigma of a Gaussian PSF after integration over a square pixel, px."""
     return math.sqrt(psf_sigma_px ** 2 + 1.0 / 12.0)
+
+
+def _impulse_cut(sigma_px: float) -> tuple[float, float]:
+    """(contrast, ring) of tracker.detect.impulse's tests for a PSF of ``sigma_px``.
+
+    The contrast is halfway between an impulse's over its 3x3 median and that
+    of a centred star a tenth sharper than the PSF at its sharpest sub-pixel
+    phase; the ring is half the light a star a tenth sharper, at its sharpest
+    phase, puts in the eight neighbours of its peak (a hot pixel's hold noise).
+    """
+    sharper = _IMPULSE_PSF_MARGIN * sigma_px
+    return 0.5 * (1.0 + psf_contrast(sharper, worst_phase=True)), 0.5 * psf_ring(sharper)
 
 
 def _sigma_step_of(sigma_px: float) -> int:
@@ -381,13 +401,7 @@ class DefaultDetector:
         filter_gain = float(np.sum(kernel ** 2))
         peak_threshold = gaussian_peak_threshold(
             self.cfg.false_alarms_per_frame, self.layout.rows * self.layout.cols, kernel)
-        # halfway between an impulse's contrast over its 3x3 median and that of a centred
-        # star a tenth sharper than the PSF at its sharpest sub-pixel phase
-        impulse_contrast = 0.5 * (1.0 + psf_contrast(_IMPULSE_PSF_MARGIN * sigma_px,
-                                                     worst_phase=True))
-        # a hot pixel's neighbours hold noise; those of a star a tenth sharper than the
-        # PSF, at its sharpest phase, more than twice this
-        impulse_ring = 0.5 * psf_ring(_IMPULSE_PSF_MARGIN * sigma_px)
+        impulse_contrast, impulse_ring = _impulse_cut(sigma_px)
         roughness = StarRoughness.of(self.centroider.radius, sigma_px)
         return ((filter_gain, peak_threshold, impulse_contrast, impulse_ring,
                  *roughness.values()),
@@ -442,22 +456,72 @@ class DefaultDetector:
         self._configure(self.psf.sigma_px)
         self._refine_impulses()
         count = self._search()
-        for _ in range(_SECOND_LOOKS):
-            # too few bright stars for step 4: the centroided candidates measure the PSF,
-            # and a frame whose PSF is far from the one used is searched again with it
-            if not self.measure_psf or self.psf.stars > 0:
-                break
-            measured = self._psf_from_candidates()
-            if measured is None or abs(math.log(measured.sigma_px / self.psf_sigma_used)) < (
-                    _SECOND_LOOK_CHANGE):
-                break
-            self.psf = self.psf_tracker.update(measured)
-            self._configure(self.psf.sigma_px)
-            count = self._search()
+        if self.measure_psf and self.psf.stars == 0:
+            count = self._second_look(count)
         timer.stop()
         reason = (Reason.CROWDED if self.peaks.crowded
                   else Reason.TOO_MANY if self.counters["left_out"] else None)
         return self.table.result(count, reason, self.counters, timer.ms, self.psf)
+
+    def _second_look(self, count: int) -> int:
+        """Too few bright stars for step 4: the PSF measured on the stars the search kept
+        (:meth:`_psf_from_candidates`); with it the lone impulses are judged again and,
+        if it is far from the PSF searched with, the frame searched again. Returns the
+        star count.
+
+        Without a measurement the frame keeps the PSF it was searched with (the
+        configured start, or the estimate of earlier frames). Fewer agreeing stars
+        than ``psf_min_stars``, but at least ``_LONE_STARS``, do not measure it but
+        say the frame's stars are no sharper than the sharpest of them, and the lone
+        impulses are judged against that; with fewer still they stay judged against
+        the sharpest PSF handled.
+        """
+        self.timer.start("psf")
+        measured = self._psf_from_candidates(count)
+        if measured is None:
+            return count
+        if measured.stars < self.cfg.psf_min_stars:
+            return self._retest_lone(count, float(self.psf_meter.last_stars()[1].min()))
+        searched_px = self.psf_sigma_used
+        self.psf = self.psf_tracker.update(measured)
+        self._configure(self.psf.sigma_px)
+        count = self._retest_lone(count, self.psf_sigma_used)
+        if abs(math.log(self.psf_sigma_used / searched_px)) >= _SECOND_LOOK_CHANGE:
+            count = self._search()
+        return count
+
+    def _retest_lone(self, count: int, sigma_px: float) -> int:
+        """Judge the lone impulse candidates again against a PSF of ``sigma_px``
+        (tracker.detect.impulse.ImpulseFilter.retest_lone) and drop the stars that were
+        mostly such a pixel; returns the new star count."""
+        if self.cfg.impulse_contrast is not None:
+            return count
+        contrast, ring = _impulse_cut(sigma_px)
+        hit, excess = self.impulses.retest_lone(self.input.padded, contrast, ring,
+                                                mirror_pad=self.float_pad)
+        self.counters["impulse_pixels"] += len(hit)
+        self.counters["hot_pixels"] += len(hit)
+        return self._drop_impulses(count, hit, excess)
+
+    def _drop_impulses(self, count: int, hit: np.ndarray, excess: np.ndarray) -> int:
+        """Drop the stars of the table (its first ``count``) that were mostly a pixel
+        found an impulse since: one of ``hit`` (padded flat indices) in the 3x3 around
+        the star's centre, standing above its median (``excess``, ADU) by at least half
+        the star's peak. Returns the new count."""
+        if len(hit) == 0 or count == 0:
+            return count
+        s = self.table.stars
+        centre = self.layout.flat_index(np.rint(s["y"][:count]).astype(np.intp),
+                                        np.rint(s["x"][:count]).astype(np.intp))
+        near = centre[:, None] + self.impulses.window_offsets[None, :]
+        which = np.searchsorted(hit, near)        # hit is sorted (raster order)
+        which = np.minimum(which, len(hit) - 1)
+        on = (hit[which] == near) & (excess[which] >= 0.5 * s["peak"][:count, None])
+        keep = np.flatnonzero(~on.any(axis=1))
+        if len(keep) == count:
+            return count
+        s[:len(keep)] = s[keep]
+        return len(keep)
 
     def _refine_impulses(self) -> None:
         """The impulse stage's second pass, judged against the PSF in use if this frame's
@@ -565,32 +629,27 @@ class DefaultDetector:
         timer.start("centroid")
         return self._measure(n)
 
-    def _psf_from_candidates(self):
-        """The PSF from the centroided candidates' windowed moments (tracker.detect.psf).
-
-        For a Gaussian spot the moments under the window's Gaussian weight
-        give its covariance exactly (C = (M^-1 - I / w^2)^-1); the spots used
-        are significant (SNR >= 20), unsaturated, unblended and round enough.
-        Windows cut for a PSF much narrower than the stars' truncate them, so
-        a wide PSF is approached in a step or two.
-        """
-        n = self.counters["candidates"]
-        if n == 0:
+    def _psf_from_candidates(self, count: int):
+        """The PSF measured (tracker.detect.psf's meter) on the frame's ``count`` stars as
+        kept (brightest first): those at SNR >= _SECOND_LOOK_SNR, neither saturated,
+        blended, on the edge nor extended. The shape tests have set aside the
+        particles' sharp spots and tracks, which would otherwise measure a PSF as
+        sharp as their charge."""
+        s = self.table.stars[:count]
+        bad = StarFlag.SATURATED | StarFlag.BLENDED | StarFlag.EDGE | StarFlag.EXTENDED
+        use = np.flatnonzero((s["snr"] >= _SECOND_LOOK_SNR) & ((s["flags"] & bad) == 0))
+        m = min(len(use), _PSF_STARS)
+        if m == 0:
             return None
-        v = self.centroider.v
-        w2 = self.sigma ** 2
-        use = ((v["snr"][:n] >= _SECOND_LOOK_SNR) & (v["raw_peak"][:n] < self.saturation)
-               & ~self.peaks.blended[:n])
-        mxx, myy, mxy = v["mxx"][:n][use], v["myy"][:n][use], v["mxy"][:n][use]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            det = mxx * myy - mxy * mxy
-            a, b, c = myy / det - 1.0 / w2, mxx / det - 1.0 / w2, -mxy / det
-            det_c = a * b - c * c
-            sigma, ellipticity, _ = pixel_tensor_to_optics(b / det_c, a / det_c, -c / det_c)
-        good = (np.isfinite(sigma) & (ellipticity < 0.5) & (sigma >= SIGMA_MIN_PX)
-                & (sigma <= SIGMA_MAX_PX) & (det > 0) & (det_c > 0))
-        return combine_stars(sigma[good], ellipticity[good], (b / det_c)[good],
-                             (a / det_c)[good], (-c / det_c)[good], self.cfg.psf_min_stars)
+        use = use[:m]               # the table is most significant first
+        rows = np.rint(s["y"][use]).astype(np.intp)
+        cols = np.rint(s["x"][use]).astype(np.intp)
+        self.psf_cand[:m] = self.layout.flat_index(rows, cols)
+        self.grid.at(self.noise, self.psf_cand[:m], self.psf_noise[:m])
+        return self.psf_meter.measure(m, self.input.padded, self.bg_pad, self.psf_cand,
+                                      self.psf_noise, self.saturation, self.psf.sigma_px,
+                                      self._edge_distance(rows, cols),
+                                      min_stars=min(_LONE_STARS, self.cfg.psf_min_stars))
 
     def _bright_peaks(self) -> tuple[np.ndarray, np.ndarray]:
         """The brightest local maxima (padded flat indices, pixel noise), brightest first.
@@ -843,10 +902,13 @@ class DefaultDetector:
         # whatever the spot's own width): one narrower than ``sharp_size_ratio``, and
         # than a star by more than _WIDTH_SPREADS of that spread, is a hot pixel or a
         # particle's hit the impulse stage left (its noisy 3x3 median or neighbours
-        # made it look like a star's light)
+        # made it look like a star's light). Against a PSF this frame's stars measured
+        # a star's width is known, and 3 spreads suffice (a faint star is lost 1 time
+        # in 700); against one from elsewhere the frame's stars may be sharper than it
         if self.speckle_fit is None:
             sharp |= spot & (width < self.cfg.sharp_size_ratio) & (
-                (1.0 - width) * known > _WIDTH_SPREADS * math.sqrt(2.0))
+                (1.0 - width) * known > math.sqrt(2.0) * (
+                    _MEASURED_WIDTH_SPREADS if self.psf.stars else _WIDTH_SPREADS))
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
@@ -1004,7 +1066,7 @@ class DefaultDetector:
         stars, does not see it); particle tracks and a crescent's pieces point every
         way, and round stars not at all.
         """
-        use = ((v["snr"][:n] >= _SECOND_LOOK_SNR) & (v["raw_peak"][:n] < self.saturation)
+        use = ((v["snr"][:n] >= _ELONGATION_SNR) & (v["raw_peak"][:n] < self.saturation)
                & ~self.peaks.blended[:n])
         if np.count_nonzero(use) < 5:
             return 0.0

@@ -303,6 +303,51 @@ class ImpulseFilter:
         self._clear_tracks(n, work_pad, bg_pad, limit_pad, mirror_pad)
         return self.counts
 
+    def retest_lone(self, work_pad: np.ndarray, contrast: float, ring: float,
+                    mirror_pad: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Test the last :meth:`run`'s candidates not yet replaced, and with no replaced
+        pixel of added charge beside them, again as lone impulses against ``contrast``
+        and ``ring`` (:meth:`refine`'s tests, for a PSF measured since); replace those
+        of added charge that fail by their 3x3 median (in ``mirror_pad`` too).
+
+        Returns the replaced pixels (padded flat indices, ascending) and how far each
+        stood above its median, ADU. Tracks are left as :meth:`refine` left them;
+        after a whole-frame pass nothing changes.
+        """
+        n = self._n
+        if n == 0:
+            return self.index[:0], self.values[0, :0]
+        idx = self.index[:n]
+        touching = self._neighbour_marks(n, idx, self.charge[:n])
+        np.max(touching, axis=1, out=self.any_after[:n])
+        w, m, b, lim = (v[:n] for v in self.values)
+        window = self.window_values[:n]
+        np.add(idx[:, None], self.window_offsets[None, :], out=self.window_index[:n])
+        np.take(work_pad.ravel(), self.window_index[:n], out=window, mode="clip")
+        around = self.ring[:n]
+        np.sum(window, axis=1, out=around, dtype=np.float32)
+        np.subtract(around, window[:, 4], out=around)
+        np.subtract(around, 8.0 * b, out=around)        # the neighbours' light
+        np.copyto(w, window[:, 4])
+        window.partition(4, axis=1)
+        np.copyto(m, window[:, 4])
+        imp = _impulse_test(w, m, b, lim, contrast, self.sparse, n)
+        t1, lone = self.sparse.t1[:n], self.lone[:n]
+        np.subtract(w, b, out=t1)
+        np.multiply(t1, ring, out=t1)
+        np.less(around, t1, out=lone)                   # its neighbours dark for a star
+        np.logical_and(lone, w - m > lim, out=lone)
+        np.logical_or(imp, lone, out=imp)
+        imp &= (w > m) & ~self.replaced[:n] & (self.any_after[:n] == 0)
+        hit = np.compress(imp, idx)
+        median_of = np.compress(imp, m)
+        np.put(work_pad.ravel(), hit, median_of.astype(work_pad.dtype), mode="clip")
+        if mirror_pad is not None:
+            np.put(mirror_pad.ravel(), hit, median_of, mode="clip")
+        self.replaced[:n] |= imp
+        self.charge[:n] |= imp
+        return hit, np.compress(imp, w) - median_of
+
     @staticmethod
     def _mirror(idx: np.ndarray, reads: np.ndarray, work_pad: np.ndarray,
                 mirror_pad: np.ndarray) -> None:

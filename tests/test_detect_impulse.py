@@ -1,0 +1,52 @@
+"""The lone-impulse rule judged again once a frame's PSF is known
+(tracker.detect.impulse.ImpulseFilter.retest_lone)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
+from tracker.detect.layout import PaddedLayout
+
+BACKGROUND = 100
+LIMIT = 20                  # k_sigma times the pixel noise, ADU
+
+
+def _star(frame, row, col, sigma, peak):
+    """Add a pixel-integrated Gaussian star centred on pixel (row, col), ``peak`` ADU high."""
+    edges = np.arange(-6.5, 7.0)
+    w = np.diff([math.erf(e / (sigma * math.sqrt(2.0))) for e in edges])
+    stamp = np.outer(w, w)
+    stamp *= peak / stamp.max()
+    frame[row - 6:row + 7, col - 6:col + 7] += np.rint(stamp).astype(frame.dtype)
+
+
+def test_a_hot_pixel_spared_for_a_sharp_psf_is_replaced_for_the_frames_and_its_star_kept():
+    """A hot pixel 60 ADU high whose 3x3 median five lifted neighbours raise by 10 stands
+    above it by 0.83 of its height: spared by the first pass (judged against a 0.55 px
+    PSF) and by the refinement against the sharpest PSF handled. Against the frame's
+    2.2 px PSF it is an impulse and is replaced by its median, while the peak of a star
+    of that PSF, 300 ADU high (above its median by more than the limit), is not."""
+    layout = PaddedLayout((80, 80), 8)
+    pad, frame = layout.buffer(np.uint16)
+    frame[:] = BACKGROUND
+    frame[19:22, 19:22] = [[110, 110, 110], [110, 160, 100], [110, 100, 100]]
+    _star(frame, 50, 50, 2.2, 300.0)
+    bg_pad, bg = layout.buffer(np.float32)
+    bg[:] = BACKGROUND
+    limit_pad, limit = layout.buffer(np.uint16)
+    limit[:] = LIMIT
+    impulses = ImpulseFilter(layout, 0.5 * (1.0 + psf_contrast(0.55, worst_phase=True)), 64,
+                             np.uint16)
+    impulses.run(pad, frame, bg_pad, limit_pad, limit)
+    impulses.refine(pad, bg_pad, limit_pad, impulses.contrast, 0.5 * psf_ring(0.45))
+    assert frame[20, 20] == 160 and frame[50, 50] == BACKGROUND + 300
+    mirror = pad.astype(np.float32)
+    hit, excess = impulses.retest_lone(pad, 0.5 * (1.0 + psf_contrast(0.9 * 2.2, True)),
+                                       0.5 * psf_ring(0.9 * 2.2), mirror_pad=mirror)
+    assert list(hit) == list(layout.flat_index(np.array([20]), np.array([20])))
+    assert list(excess) == [50.0]
+    assert frame[20, 20] == 110 and mirror[8 + 20, 8 + 20] == 110.0
+    assert frame[50, 50] == BACKGROUND + 300
