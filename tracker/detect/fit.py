@@ -49,7 +49,7 @@ import math
 
 import numpy as np
 
-from tracker.normal import pixel_fractions
+from tracker.normal import spaced_pixel_fractions
 
 __all__ = ["PixelGaussianFit"]
 
@@ -106,8 +106,11 @@ class PixelGaussianFit:
         # from the star's, and their slopes to the next node, t from -reach to reach
         reach = int(radius) + _TABLE_REACH_PX
         t = np.arange(-reach, reach + 1.5 / _TABLE_PER_PX, 1.0 / _TABLE_PER_PX)
-        frac, dfrac = pixel_fractions(np.stack((t - 0.5, t + 0.5), axis=1), self.sigma)
-        values = np.concatenate((frac, dfrac), axis=1)                 # (K, 2)
+        # pixel i spans t_i -+ 0.5: its edges lie on one grid, _TABLE_PER_PX nodes apart
+        # (all these are whole multiples of 1/_TABLE_PER_PX: exact in float64)
+        edges = np.concatenate((t - 0.5, t[-_TABLE_PER_PX:] + 0.5))
+        frac, dfrac = spaced_pixel_fractions(edges, _TABLE_PER_PX, self.sigma)
+        values = np.stack((frac, dfrac), axis=1)                       # (K, 2)
         self._table = self._table_buffer[:len(t) - 1]
         self._table[:, 0::2] = values[:-1]
         self._table[:, 1::2] = np.diff(values, axis=0)
