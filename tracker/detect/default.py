@@ -258,6 +258,9 @@ class DefaultDetector:
         self.float_pad, self.work_float = layout.buffer(np.float32)  # the filter's input
         self.filt_pad, self.filt = layout.buffer(np.float32)
         self.threshold = np.zeros(self.input.shape, np.float32)  # background included, ADU
+        half = _kernel_half(SIGMA_MAX_PX)    # the border strips' gains (_edge_gains)
+        self.row_gains = np.zeros((2, half, layout.cols), np.float32)
+        self.col_gains = np.zeros((2, layout.rows, half), np.float32)
         # An impulse is sharper than the sharpest PSF the detector is made for (0.55 px,
         # at its sharpest sub-pixel phase), whatever this frame's PSF turns out to be.
         contrast = (cfg.impulse_contrast if cfg.impulse_contrast is not None
@@ -367,6 +370,7 @@ class DefaultDetector:
         self.surroundings.configure(int(math.ceil(_SKY_RING_SIGMAS * sigma)))
         scalars, self.edge_gain = self.steps.get(
             step, lambda: self._step_constants(sigma_px, kernel))
+        self._edge_gains(*self.edge_gain)
         self.filter_gain, self.peak_threshold, self.impulse_contrast, self.impulse_ring = \
             scalars[:4]
         self.star_roughness = StarRoughness.from_values(scalars[4:])
@@ -754,22 +758,33 @@ class DefaultDetector:
         v["x0"][clipped[wide]] = mean[:, 0]
         v["y0"][clipped[wide]] = mean[:, 1]
 
+    def _edge_gains(self, top: np.ndarray, left: np.ndarray) -> None:
+        """Spread the filter's noise gains at the first rows (``top``) and columns
+        (``left``; the last ones mirror them) over the four border strips they scale."""
+        r, c = len(top), len(left)
+        self.edge_strips = ((slice(0, r), slice(None)), (slice(-r, None), slice(None)),
+                            (slice(None), slice(0, c)), (slice(None), slice(-c, None)))
+        self.edge_gains = (self.row_gains[0, :r], self.row_gains[1, :r],
+                           self.col_gains[0, :, :c], self.col_gains[1, :, :c])
+        for gain, profile in zip(self.edge_gains, (top[:, None], top[::-1, None],
+                                                   left[None, :], left[None, ::-1]),
+                                 strict=True):
+            np.copyto(gain, profile)
+
     def _raise_edges(self) -> None:
         """Scale the threshold's height above the background near the borders.
 
         There the reflected filter has more noise (``_reflected_noise_gain``).
+        The strips in OpenCV's arithmetic, which runs along their rows in one
+        call (numpy's would step a loop of a few pixels per row down the side
+        strips): the same float32 operations, a quarter of the time.
         """
-        top, left = self.edge_gain
-        r = len(top)
         t, b = self.threshold, self.bg
-        for sl, gain in (((slice(0, r), slice(None)), top[:, None]),
-                         ((slice(-r, None), slice(None)), top[::-1, None]),
-                         ((slice(None), slice(0, r)), left[None, :]),
-                         ((slice(None), slice(-r, None)), left[None, ::-1])):
-            strip = t[sl]
-            np.subtract(strip, b[sl], out=strip)
-            np.multiply(strip, gain, out=strip)
-            np.add(strip, b[sl], out=strip)
+        for sl, gain in zip(self.edge_strips, self.edge_gains, strict=True):
+            strip, under = t[sl], b[sl]
+            cv2.subtract(strip, under, dst=strip)
+            cv2.multiply(strip, gain, dst=strip)
+            cv2.add(strip, under, dst=strip)
 
     def _measure(self, n: int) -> int:
         """Centroid the candidates, reject sharp spots, fill the star table."""
