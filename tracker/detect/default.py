@@ -65,11 +65,10 @@ The Gaussian of step 5 and the threshold tests of steps 4 and 6 run in
 ``detect.threads`` horizontal slabs at once (tracker.detect.slabs; the
 result does not depend on the thread count). With more than one thread
 full-frame passes also run on worker threads beside Python work that does
-not need them: the median of step 3, then the background's interpolation
-to full size, while step 2 works out the background and the impulse limit
-(the median needs only the frame; the ``background`` stage's time includes
-it and ``impulses`` does not), the impulse limit's interpolation on the
-other worker beside the background's; and the float copy of step 5, with the
+not need them: the median of step 3 while step 2 works out the background
+and the impulse limit (the median needs only the frame), the background's
+interpolation to full size on the other worker beside the impulse limit's;
+and the float copy of step 5, with the
 background read at the filtered statistics' samples, while step 4 measures
 the PSF (the impulses' second pass then rewrites the pixels it changes in
 both copies).
@@ -423,17 +422,16 @@ class DefaultDetector:
             grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
                        upper=True, dark_side=self.dark_side)
             self.sky_model = sky_noise_model(self.level, self.noise, self.saturation)
-        # the background's interpolation on the impulse stage's worker thread, queued
-        # behind the median, and the impulse limit's on the filter's (idle until step 4),
-        # while this thread waits for both
-        bg_wait = self.impulses.slabs.start(grid.upsample, self.level, self.bg)
+        # the background's interpolation on the filter's worker (idle until step 4; the
+        # impulse stage's is still busy with the median), while the impulse limit's is
+        # made here
+        bg_wait = self.filter_slabs.start(grid.upsample, self.level, self.bg)
         np.multiply(self.noise, self.cfg.impulse_sigma, out=self.float_grid)
         np.clip(self.float_grid, 0.0, 65535.0, out=self.float_grid)
         np.rint(self.float_grid, out=self.float_grid)
         np.copyto(self.int_grid, self.float_grid, casting="unsafe")
-        limit_wait = self.filter_slabs.start(grid.upsample, self.int_grid, self.impulse_limit)
+        grid.upsample(self.int_grid, self.impulse_limit)
         bg_wait()
-        limit_wait()
         grid.cap_in_tiles(self.level, self.bg, self.beside_body)
         timer.start("impulses")
         self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
