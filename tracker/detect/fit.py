@@ -200,7 +200,8 @@ class PixelGaussianFit:
             if step is None:
                 break
             np.add(pos, step[:2], out=pos)
-            np.clip(pos, -max_shift, max_shift, out=pos)
+            np.maximum(pos, -max_shift, out=pos)    # np.clip's Python layers cost more
+            np.minimum(pos, max_shift, out=pos)
             np.add(flux, step[2], out=flux)
             np.maximum(flux, 1.0, out=flux)
         x[:], y[:] = pos[0], pos[1]
@@ -213,10 +214,11 @@ class PixelGaussianFit:
         m = pos.shape[1]
         at = self._at[: 2 * m * self.side].reshape(2, m, self.side)
         np.subtract(self._nodes, (pos * _TABLE_PER_PX)[:, :, None], out=at)
-        np.clip(at, 0.0, self._last, out=at)
+        np.maximum(at, 0.0, out=at)
+        np.minimum(at, self._last, out=at)
         node = at.astype(np.intp)
         np.subtract(at, node, out=at)                        # the way to the next node
-        rows = self._table[node]                             # (2, m, side, 4)
+        rows = np.take(self._table, node, axis=0)            # (2, m, side, 4)
         frac = rows[..., 0] + at * rows[..., 1]
         dfrac = rows[..., 2] + at * rows[..., 3]
         return frac[0], frac[1], dfrac[0], dfrac[1]
@@ -227,7 +229,8 @@ class PixelGaussianFit:
         by the adjugate (zero for a star whose matrix is not positive definite), or None
         when no star's is."""
         flat = normal.reshape(len(normal), 9)
-        adj = flat[:, _ADJ[0]] * flat[:, _ADJ[1]] - flat[:, _ADJ[2]] * flat[:, _ADJ[3]]
+        a, b, c, d = (np.take(flat, index, axis=1) for index in _ADJ)
+        adj = a * b - c * d
         det = np.einsum("ij,ij->i", flat[:, :3], adj[:, :3])
         good = np.isfinite(det) & (det > 0)
         if not good.any():
