@@ -361,7 +361,8 @@ class DefaultDetector:
         k = 2 * _kernel_half(sigma_px) + 1
         self.ksize = (k, k)
         kernel = cv2.getGaussianKernel(k, sigma, cv2.CV_64F).ravel()
-        self.tail.configure(kernel)
+        self.kernel = kernel       # the noise tail's, configured when a frame needs it
+        self._tail_kernel = None
         self.peaks.configure(blend)
         self.centroider.configure(self.radius, sigma)
         self.fit.configure(self.radius, sigma_px)
@@ -722,6 +723,9 @@ class DefaultDetector:
         skewness = self.grid.skewness()
         k = None
         if skewness > _TAIL_SKEWNESS:   # noise near Gaussian needs no histogram
+            if self._tail_kernel is not self.kernel:
+                self.tail.configure(self.kernel)
+                self._tail_kernel = self.kernel
             self.tail.sample(self.input.padded, self.level, self.noise)
             k = self.tail.threshold(u, self.noise_f, self.filter_gain)
         self.threshold_k = max(u, k) if k is not None else skewed_threshold(u, skewness)
