@@ -68,10 +68,9 @@ full-frame passes also run on worker threads beside Python work that does
 not need them: the median of step 3 while step 2 works out the background
 and the impulse limit (the median needs only the frame), the background's
 interpolation to full size on the other worker beside the impulse limit's;
-and the float copy of step 5, with the
-background read at the filtered statistics' samples, while step 4 measures
-the PSF (the impulses' second pass then rewrites the pixels it changes in
-both copies).
+and the float copy of step 5, with the background read at the filtered
+statistics' samples, while step 4 measures the PSF (the impulses' second
+pass then rewrites the pixels it changes in both copies).
 
 ``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
 found in steps 3-4 plus sharp spots from step 7), sharp_spots, candidates,
@@ -770,9 +769,9 @@ class DefaultDetector:
         r, c = len(top), len(left)
         self.edge_strips = ((slice(0, r), slice(None)), (slice(-r, None), slice(None)),
                             (slice(None), slice(0, c)), (slice(None), slice(-c, None)))
-        self.edge_gains = (self.row_gains[0, :r], self.row_gains[1, :r],
+        self.edge_gain_strips = (self.row_gains[0, :r], self.row_gains[1, :r],
                            self.col_gains[0, :, :c], self.col_gains[1, :, :c])
-        for gain, profile in zip(self.edge_gains, (top[:, None], top[::-1, None],
+        for gain, profile in zip(self.edge_gain_strips, (top[:, None], top[::-1, None],
                                                    left[None, :], left[None, ::-1]),
                                  strict=True):
             np.copyto(gain, profile)
@@ -786,7 +785,7 @@ class DefaultDetector:
         strips): the same float32 operations, a quarter of the time.
         """
         t, b = self.threshold, self.bg
-        for sl, gain in zip(self.edge_strips, self.edge_gains, strict=True):
+        for sl, gain in zip(self.edge_strips, self.edge_gain_strips, strict=True):
             strip, under = t[sl], b[sl]
             cv2.subtract(strip, under, dst=strip)
             cv2.multiply(strip, gain, dst=strip)
