@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["erf", "log_pdf", "log_tail", "log_interval", "pixel_fractions"]
+__all__ = ["erf", "log_pdf", "log_tail", "log_interval", "pixel_fractions",
+           "spaced_pixel_fractions"]
 
 _LOG_HALF = float(np.log(0.5))
 _LOG_SQRT_2PI = float(0.5 * np.log(2.0 * np.pi))
@@ -80,7 +81,24 @@ def pixel_fractions(edges: np.ndarray, sigma: float) -> tuple[np.ndarray, np.nda
     Gaussian in each pixel and the derivative of that fraction with
     respect to the centre, both of the last axis' length minus one.
     """
-    scaled = np.asarray(edges, dtype=np.float64) / sigma
-    cdf = 0.5 * erf(scaled / _SQRT2)
-    pdf = np.exp(log_pdf(scaled)) / sigma
+    cdf, pdf = _edge_values(edges, sigma)
     return np.diff(cdf, axis=-1), -np.diff(pdf, axis=-1)
+
+
+def spaced_pixel_fractions(edges: np.ndarray, per_px: int,
+                           sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pixel_fractions` of unit-wide pixels whose edges lie on one grid.
+
+    ``edges``: 1-D, evenly spaced 1 / ``per_px`` px apart (minus the
+    Gaussian's centre); pixel i spans ``edges[i]`` to ``edges[i + per_px]``.
+    Each edge's values are computed once, not once per pixel side: half the
+    error functions of the same pixels listed edge by edge, the same values.
+    """
+    cdf, pdf = _edge_values(edges, sigma)
+    return cdf[per_px:] - cdf[:-per_px], -(pdf[per_px:] - pdf[:-per_px])
+
+
+def _edge_values(edges: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """The cumulative Gaussian of ``sigma`` less one half, and its density, at ``edges``."""
+    scaled = np.asarray(edges, dtype=np.float64) / sigma
+    return 0.5 * erf(scaled / _SQRT2), np.exp(log_pdf(scaled)) / sigma

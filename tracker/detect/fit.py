@@ -49,7 +49,7 @@ import math
 
 import numpy as np
 
-from tracker.normal import pixel_fractions
+from tracker.normal import spaced_pixel_fractions
 
 __all__ = ["PixelGaussianFit"]
 
@@ -106,8 +106,11 @@ class PixelGaussianFit:
         # from the star's, and their slopes to the next node, t from -reach to reach
         reach = int(radius) + _TABLE_REACH_PX
         t = np.arange(-reach, reach + 1.5 / _TABLE_PER_PX, 1.0 / _TABLE_PER_PX)
-        frac, dfrac = pixel_fractions(np.stack((t - 0.5, t + 0.5), axis=1), self.sigma)
-        values = np.concatenate((frac, dfrac), axis=1)                 # (K, 2)
+        # pixel i spans t_i -+ 0.5: its edges lie on one grid, _TABLE_PER_PX nodes apart
+        # (all these are whole multiples of 1/_TABLE_PER_PX: exact in float64)
+        edges = np.concatenate((t - 0.5, t[-_TABLE_PER_PX:] + 0.5))
+        frac, dfrac = spaced_pixel_fractions(edges, _TABLE_PER_PX, self.sigma)
+        values = np.stack((frac, dfrac), axis=1)                       # (K, 2)
         self._table = self._table_buffer[:len(t) - 1]
         self._table[:, 0::2] = values[:-1]
         self._table[:, 1::2] = np.diff(values, axis=0)
@@ -197,7 +200,8 @@ class PixelGaussianFit:
             if step is None:
                 break
             np.add(pos, step[:2], out=pos)
-            np.clip(pos, -max_shift, max_shift, out=pos)
+            np.maximum(pos, -max_shift, out=pos)    # np.clip's Python layers cost more
+            np.minimum(pos, max_shift, out=pos)
             np.add(flux, step[2], out=flux)
             np.maximum(flux, 1.0, out=flux)
         x[:], y[:] = pos[0], pos[1]
@@ -210,10 +214,11 @@ class PixelGaussianFit:
         m = pos.shape[1]
         at = self._at[: 2 * m * self.side].reshape(2, m, self.side)
         np.subtract(self._nodes, (pos * _TABLE_PER_PX)[:, :, None], out=at)
-        np.clip(at, 0.0, self._last, out=at)
+        np.maximum(at, 0.0, out=at)
+        np.minimum(at, self._last, out=at)
         node = at.astype(np.intp)
         np.subtract(at, node, out=at)                        # the way to the next node
-        rows = self._table[node]                             # (2, m, side, 4)
+        rows = np.take(self._table, node, axis=0)            # (2, m, side, 4)
         frac = rows[..., 0] + at * rows[..., 1]
         dfrac = rows[..., 2] + at * rows[..., 3]
         return frac[0], frac[1], dfrac[0], dfrac[1]
@@ -224,7 +229,8 @@ class PixelGaussianFit:
         by the adjugate (zero for a star whose matrix is not positive definite), or None
         when no star's is."""
         flat = normal.reshape(len(normal), 9)
-        adj = flat[:, _ADJ[0]] * flat[:, _ADJ[1]] - flat[:, _ADJ[2]] * flat[:, _ADJ[3]]
+        a, b, c, d = (np.take(flat, index, axis=1) for index in _ADJ)
+        adj = a * b - c * d
         det = np.einsum("ij,ij->i", flat[:, :3], adj[:, :3])
         good = np.isfinite(det) & (det > 0)
         if not good.any():

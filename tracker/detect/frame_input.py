@@ -67,8 +67,6 @@ class FrameInput:
             self.padded, self.work = layout.buffer(dtype)
         # float copy of float frames (and, for a uint16 work, of any unusual frame)
         self.staging = np.zeros(self.shape, np.float32) if self.integer else self.work
-        self.lo = 0.0
-        self.hi = 0.0
 
     def load(self, image: object) -> str | None:
         """Copy ``image`` into ``work``; a reason code if it cannot be searched."""
@@ -87,15 +85,19 @@ class FrameInput:
             src = image
         # numpy's SIMD reductions, on the narrow integer frame where there is one, take a
         # sixth of cv2.minMaxLoc's time on the float copy
-        self.lo, self.hi = float(src.min()), float(src.max())
-        if self.hi <= 0.0:
+        hi = float(src.max())
+        if hi <= 0.0:
             return Reason.EMPTY
-        if self.lo >= self.full_scale:
-            return Reason.SATURATED
-        if self.hi == self.lo:
-            return Reason.FLAT
-        if not self.integer or (image.dtype in (np.uint8, np.uint16)
-                                and self.hi <= self.full_scale):
+        # the lowest value only tells a saturated or flat frame: with every pixel at or
+        # under full scale, a first row holding a value under the highest says neither
+        # (no pass over the whole frame for it)
+        if hi > self.full_scale or float(src[0].min()) == hi:
+            lo = float(src.min())
+            if lo >= self.full_scale:
+                return Reason.SATURATED
+            if hi == lo:
+                return Reason.FLAT
+        if not self.integer or (image.dtype in (np.uint8, np.uint16) and hi <= self.full_scale):
             if src is not self.work:
                 np.copyto(self.work, image, casting="unsafe")
         else:

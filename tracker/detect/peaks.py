@@ -52,7 +52,7 @@ class PeakFinder:
 
     def __init__(self, layout: PaddedLayout, radius: int, dip_sigma: float,
                  pixel_capacity: int, capacity: int, slabs: SlabRunner | None = None,
-                 dtype: type = np.float32) -> None:
+                 dtype: type = np.float32, max_radius: int = 0) -> None:
         self.slabs = slabs or SlabRunner(layout.rows, layout.cols, 0, 1, np.float32)
         self.layout = layout
         self.stride = layout.stride
@@ -85,22 +85,40 @@ class PeakFinder:
         self._n_pixels = 0
         self.radius = -1
         self._pair_room = 0
+        self._reach = -1
+        self._neighbourhood(max(int(radius), int(max_radius)))
         self.configure(radius)
 
+    def _neighbourhood(self, radius: int) -> None:
+        """Every offset within ``radius`` px (the centre left out), nearest first, with
+        the line samples to it: the pairs of any radius up to it are their first ones."""
+        dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+        keep = (dy ** 2 + dx ** 2 <= radius ** 2) & ((dy != 0) | (dx != 0))
+        dy, dx = dy[keep], dx[keep]
+        order = np.argsort(dy ** 2 + dx ** 2, kind="stable")
+        dy, dx = dy[order], dx[order]
+        self._distance2 = dy ** 2 + dx ** 2
+        self._offsets = (dy * self.stride + dx).astype(np.intp)
+        line = [np.rint(t * dy) * self.stride + np.rint(t * dx) for t in _LINE_STEPS]
+        self._lines = np.stack(line, axis=1).astype(np.intp)  # (P, 3)
+        self._reach = radius
+
     def configure(self, radius: int) -> None:
-        """Pairs: candidates closer than ``radius`` px (kept between frames if unchanged)."""
+        """Pairs: candidates closer than ``radius`` px (kept between frames if unchanged).
+
+        A neighbour's order among the pairs decides nothing (each candidate's
+        brighter neighbour is the one ranked first, ranks being distinct), so
+        the neighbourhood made for the widest radius serves every narrower one.
+        """
         radius = int(radius)
         if radius == self.radius:
             return
         self.radius = radius
-        # Neighbourhood for pairs: every offset within radius, with the line samples to it.
-        dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
-        keep = (dy ** 2 + dx ** 2 <= radius ** 2) & ((dy != 0) | (dx != 0))
-        dy, dx = dy[keep], dx[keep]
-        self.pair_offsets = (dy * self.stride + dx).astype(np.intp)
-        line = [np.rint(t * dy) * self.stride + np.rint(t * dx) for t in _LINE_STEPS]
-        self.line_offsets = np.stack(line, axis=1).astype(np.intp)  # (P, 3)
-        p = len(self.pair_offsets)
+        if radius > self._reach:
+            self._neighbourhood(radius)
+        p = int(np.searchsorted(self._distance2, radius * radius, side="right"))
+        self.pair_offsets = self._offsets[:p]
+        self.line_offsets = self._lines[:p]
         if p > self._pair_room:   # buffers grow to the widest radius used, never shrink
             self._pair_room = p
             self._pair_index = np.zeros(self.capacity * p, np.intp)
