@@ -82,7 +82,7 @@ from tracker.identify.predict import (
     TrackPrediction,
     informative,
     pixel_jacobian,
-    predict_positions,
+    spread_and_smear,
 )
 from tracker.identify.verify import Projector, false_match_probability, match_nearest
 from tracker.timing import StageTimer
@@ -246,7 +246,8 @@ class Solver:
         self._cat_mag = np.asarray(catalogue.mag, dtype=np.float64)
         self._search = PatternSearch(bound, cfg.pattern_tolerance_px, cfg.min_separation_px)
         self._db_proj = Projector(bound.vectors)
-        self._cat_proj = Projector(self._cat_vectors, reuse_cone_rad=_CONE_REUSE_RAD)
+        self._cat_proj = Projector(self._cat_vectors, reuse_cone_rad=_CONE_REUSE_RAD,
+                                   key=self._cat_mag)
         self._area = float(camera.width * camera.height)
         self._timer = StageTimer()
         self._prior = lens_prior(cfg, camera)
@@ -439,30 +440,30 @@ class Solver:
         R = self._predicted(t_ns)
         camera = self.lens_camera()
         beta = None if observer is None else observer.beta()
-        cat_idx, pix = self._cat_proj.predict(R, camera, beta=beta)   # in the image
-        mag = self._cat_mag[cat_idx]
-        order = np.argsort(mag, kind="stable")
-        bright = order[:np.count_nonzero(mag <= self._faintest + cfg.track_window_mag_margin)]
-        cat_idx = cat_idx[bright]
-        named = np.arange(len(cat_idx))
-        if self._snr_zero is not None:
+        # the catalogue stars in the image bright enough, brightest first (the cone is kept
+        # by magnitude: only those are projected)
+        cat_idx, cam, pix = self._cat_proj.project(
+            R, camera, beta=beta, key_max=self._faintest + cfg.track_window_mag_margin)
+        if self._snr_zero is None:
+            named = slice(0, cfg.track_window_stars)
+        else:
             snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[cat_idx])
-            named = informative(pix[bright], snr, (camera.cx, camera.cy),
-                                cfg.track_window_information)
-        cat_idx = cat_idx[named[:cfg.track_window_stars]]
-        # positions, uncertainties and smears of the stars given windows only
-        ref = self._cat_vectors[cat_idx]
-        if beta is not None:
-            ref = aberrate(ref, beta)
-        vectors = np.concatenate((ref, self._unknown[:cfg.track_window_unknown]))
+            named = informative(pix, snr, (camera.cx, camera.cy),
+                                cfg.track_window_information)[:cfg.track_window_stars]
+        cat_idx, cam, pix = cat_idx[named], cam[named], pix[named]
+        # the unidentified stars followed, those in the image
+        unknown = self._unknown[:cfg.track_window_unknown] @ R.T
+        unknown_pix = camera.vector_to_pixel(unknown)
+        inside = camera.in_frame(unknown_pix)
+        cam = np.concatenate((cam, unknown[inside]))
+        xy = np.concatenate((pix, unknown_pix[inside]))
+        catalogue = np.concatenate((cat_idx, np.full(np.count_nonzero(inside), -1)))
+        # uncertainties and smears of the stars given windows only
         accel = math.radians(cfg.track_accel_deg_s2) * 0.5 * dt * dt
         P = self._last_P + self._rate_P * dt * dt + np.eye(3) * accel * accel
-        xy, sigma, smear = predict_positions(camera, R, vectors, P, -self._rate, exposure_s)
-        rows = np.concatenate((np.arange(len(cat_idx)),
-                               len(cat_idx) + np.flatnonzero(camera.in_frame(xy[len(cat_idx):]))))
-        catalogue = np.concatenate((cat_idx, np.full(len(vectors) - len(cat_idx), -1)))
-        return TrackPrediction(R=R, xy=xy[rows], sigma_px=sigma[rows], smear_px=smear[rows],
-                               catalogue=catalogue[rows], dt_s=dt)
+        sigma, smear = spread_and_smear(camera, cam, P, -self._rate, exposure_s)
+        return TrackPrediction(R=R, xy=xy, sigma_px=sigma, smear_px=smear,
+                               catalogue=catalogue, dt_s=dt)
 
     def smear_px(self, xy: np.ndarray, t_ns: int, exposure_s: float) -> np.ndarray | None:
         """(n, 2) travel of image positions ``xy`` over an exposure at ``t_ns``, px.
