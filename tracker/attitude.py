@@ -151,8 +151,9 @@ def attitude_covariance(obs: np.ndarray, sigma: float | np.ndarray) -> np.ndarra
     theta[0], theta[1] tilt the boresight and theta[2] is roll about it.
     """
     obs = np.asarray(obs, dtype=np.float64)
-    inv_var = np.broadcast_to(1.0 / np.square(sigma), obs.shape[:1])
-    F = np.eye(3) * inv_var.sum() - (obs.T * inv_var) @ obs
+    inv_var = 1.0 / np.square(sigma)
+    total = inv_var * len(obs) if np.ndim(inv_var) == 0 else np.sum(inv_var)
+    F = np.eye(3) * total - (obs.T * inv_var) @ obs
     # F is symmetric: its inverse by cofactors over the determinant (a LAPACK call from the
     # frame loop can cost a millisecond on a busy machine)
     (xx, xy, xz), (_, yy, yz), (_, _, zz) = F.tolist()
