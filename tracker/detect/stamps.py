@@ -219,10 +219,12 @@ class StampDetector:
 
     def _background(self) -> None:
         """Each window's level and pixel noise from its border ring (module docstring)."""
-        ring = self.raw.reshape(self.cells, -1)[:, self.ring].astype(np.float32)
-        part = np.partition(ring, self.ring_ranks, axis=1)
-        q1, m0, m1, q3 = (part[:, k] for k in self.ring_ranks)
+        pixels = self.raw.reshape(self.cells, -1)[:, self.ring]
+        # the order statistics by sorting the integer rows: a fifth of a partition's work
+        # for four ranks
+        q1, m0, m1, q3 = np.sort(pixels, axis=1)[:, self.ring_ranks].astype(np.float32).T
         np.multiply(m0 + m1, 0.5, out=self.level)
+        ring = pixels.astype(np.float32)
         # quartiles of whole ADU are coarse for a noise of a few ADU: they only set the
         # clip of the RMS that gives the noise (Gaussian noise clipped at _CLIP_SIGMAS
         # keeps _CLIPPED_VARIANCE of its variance)
@@ -231,7 +233,8 @@ class StampDetector:
         inside = np.abs(ring) <= clip[:, None]
         np.multiply(ring, ring, out=ring)
         ring *= inside
-        var = ring.sum(axis=1) / np.maximum(inside.sum(axis=1), 1) / _CLIPPED_VARIANCE
+        var = (ring.sum(axis=1) / np.maximum(np.count_nonzero(inside, axis=1), 1)
+               / _CLIPPED_VARIANCE)
         np.sqrt(var, out=self.noise)
         np.maximum(self.noise, QUANTISATION_NOISE_ADU, out=self.noise)
 
