@@ -145,7 +145,6 @@ class StampDetector:
         self.ring_ranks = [k // 4, (k - 1) // 2, k // 2, (3 * k) // 4]  # quartiles, median
         self.level = np.zeros(n, np.float32)
         self.noise = np.zeros(n, np.float32)
-        self.axis = np.arange(c)
         self.cross = np.array([0, -1, 1, -c, c])   # a pixel and its 4 neighbours, flat offsets
         self.table = StarTable(cfg.max_stars)
         self.timer = StageTimer()
@@ -247,13 +246,18 @@ class StampDetector:
         limit = (self.k_sigma * self.filter_gain) * self.noise
         np.greater(filt, limit[:, None, None], out=self.above)
         np.logical_and(self.peak, self.above, out=self.peak)
-        rows = self._inside(origins[:, 1], self.frame_shape[0])
-        cols = self._inside(origins[:, 0], self.frame_shape[1])
-        self.peak &= rows[:, :, None]
-        self.peak &= cols[:, None, :]
         hits = np.flatnonzero(self.peak)
         win, rest = np.divmod(hits, c * c)
         py, px = np.divmod(rest, c)
+        # the rows and columns a peak may take in its window: ``margin`` from an inner
+        # border, a stamp's reach (its radius and the median's ring) from the frame's edge
+        reach = self.radius + 1
+        ox, oy = origins[win, 0], origins[win, 1]
+        inside = ((py >= np.maximum(self.margin, reach - oy))
+                  & (py <= np.minimum(c - 1 - self.margin, self.frame_shape[0] - 1 - reach - oy))
+                  & (px >= np.maximum(self.margin, reach - ox))
+                  & (px <= np.minimum(c - 1 - self.margin, self.frame_shape[1] - 1 - reach - ox)))
+        win, py, px = win[inside], py[inside], px[inside]
         significance = filt[win, py, px] / self.noise[win]
         order = np.argsort(-significance, kind="stable")
         win, py, px = win[order], py[order], px[order]
@@ -262,15 +266,6 @@ class StampDetector:
         first = np.sort(np.unique(at, return_index=True)[1])[:self.max_candidates]
         self.counters["candidates"] = len(first)
         return win[first], py[first], px[first]
-
-    def _inside(self, origin: np.ndarray, limit: int) -> np.ndarray:
-        """(cells, cell) mask of the rows (or columns) a peak may take in each window:
-        ``margin`` from an inner border, a stamp's reach (its radius and the median's
-        ring) from the frame's edge."""
-        c, reach = self.cell, self.radius + 1
-        low = np.maximum(self.margin, reach - origin)
-        high = np.minimum(c - 1 - self.margin, limit - 1 - reach - origin)
-        return (self.axis[None, :] >= low[:, None]) & (self.axis[None, :] <= high[:, None])
 
     def _stamps(self, image: np.ndarray, origins: np.ndarray, win: np.ndarray, py: np.ndarray,
                 px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
