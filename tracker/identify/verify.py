@@ -30,6 +30,8 @@ from tracker.identify.skyindex import DecSorted
 
 __all__ = ["Projector", "match_nearest", "binomial_tail", "false_match_probability"]
 
+_DENSE_PAIRS = 4096   # match_nearest compares all pairs up to this many
+
 
 class Projector:
     """Predicts where catalogue stars fall in the image for an attitude R and a lens.
@@ -129,6 +131,9 @@ def match_nearest(xy: np.ndarray, pred: np.ndarray, radius: float) -> tuple[np.n
     Cost O((n + m) log m + pairs): predictions are sorted by x and each star
     looks only at those within ``radius`` in x, so tracking 200 stars
     against 1,000 predictions compares a few thousand pairs, not 200,000.
+    Up to ``_DENSE_PAIRS`` pairs (a windowed frame's 30 stars and 30
+    predictions) all pairs are compared at once instead: a third of the
+    numpy calls, the same pairs.
     """
     n = len(xy)
     idx = np.full(n, -1, dtype=np.int64)
@@ -136,6 +141,20 @@ def match_nearest(xy: np.ndarray, pred: np.ndarray, radius: float) -> tuple[np.n
     if n == 0 or len(pred) == 0:
         return idx, dist
     order = np.argsort(pred[:, 0], kind="stable")
+    if n * len(pred) <= _DENSE_PAIRS:
+        # predictions in x order, as below: equal distances resolve alike
+        px, py = pred[order, 0], pred[order, 1]
+        d2 = np.square(xy[:, None, 0] - px) + np.square(xy[:, None, 1] - py)
+        d2[~(d2 <= radius * radius)] = np.inf               # out of reach (or NaN)
+        stars = np.arange(n)
+        near = d2.argmin(axis=1)                            # each star's nearest
+        best = d2[stars, near]
+        # a prediction claimed by several stars goes to the nearest claim
+        claims = np.where(near[:, None] == np.arange(len(pred)), d2, np.inf)
+        won = (best < np.inf) & (claims.argmin(axis=0)[near] == stars)
+        idx[won] = order[near[won]]
+        dist[won] = np.sqrt(best[won])
+        return idx, dist
     px = pred[order, 0]
     lo = np.searchsorted(px, xy[:, 0] - radius, side="left")
     hi = np.searchsorted(px, xy[:, 0] + radius, side="right")
