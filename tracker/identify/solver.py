@@ -453,23 +453,20 @@ class Solver:
         camera = self.lens_camera()
         beta = None if observer is None else observer.beta()
         # the catalogue stars in the image bright enough, brightest first (the cone is kept
-        # by magnitude: only those are projected)
-        cat_idx, cam, pix = self._cat_proj.project(
-            R, camera, beta=beta, key_max=self._faintest + cfg.track_window_mag_margin)
+        # by magnitude: only those are projected), then the unidentified stars followed
+        # that are in the image (index -1)
+        found, cam, pix = self._cat_proj.project(
+            R, camera, beta=beta, key_max=self._faintest + cfg.track_window_mag_margin,
+            extra=self._unknown[:cfg.track_window_unknown])
+        named = len(found) - np.count_nonzero(found < 0)
         if self._snr_zero is None:
-            named = slice(0, cfg.track_window_stars)
+            rows = np.arange(min(named, cfg.track_window_stars))
         else:
-            snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[cat_idx])
-            named = informative(pix, snr, (camera.cx, camera.cy),
-                                cfg.track_window_information)[:cfg.track_window_stars]
-        cat_idx, cam, pix = cat_idx[named], cam[named], pix[named]
-        # the unidentified stars followed, those in the image
-        unknown = self._unknown[:cfg.track_window_unknown] @ R.T
-        unknown_pix = camera.vector_to_pixel(unknown)
-        inside = camera.in_frame(unknown_pix)
-        cam = np.concatenate((cam, unknown[inside]))
-        xy = np.concatenate((pix, unknown_pix[inside]))
-        catalogue = np.concatenate((cat_idx, np.full(np.count_nonzero(inside), -1)))
+            snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[found[:named]])
+            rows = informative(pix[:named], snr, (camera.cx, camera.cy),
+                               cfg.track_window_information)[:cfg.track_window_stars]
+        rows = np.concatenate((rows, np.arange(named, len(found))))
+        catalogue, cam, xy = found[rows], cam[rows], pix[rows]
         # uncertainties and smears of the stars given windows only
         accel = math.radians(cfg.track_accel_deg_s2) * 0.5 * dt * dt
         P = self._last_P + self._rate_P * dt * dt + np.eye(3) * accel * accel

@@ -90,8 +90,8 @@ class Projector:
         return 1.01 * math.atan(rho) + 2.0 / camera.f_px
 
     def project(self, R: np.ndarray, camera: CameraModel, margin_px: float = 0.0,
-                beta: np.ndarray | None = None,
-                key_max: float = math.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                beta: np.ndarray | None = None, key_max: float = math.inf,
+                extra: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(indices into ``vectors``, camera-frame vectors (m, 3), pixels (m, 2)) of the
         stars in the image, ``margin_px`` inside its edge; with a ``key``, those whose
         key is at most ``key_max``, in its order.
@@ -99,7 +99,9 @@ class Projector:
         With ``beta`` (the observer's velocity / c, ICRS) the stars are placed at
         their apparent directions (tracker.astrometry.aberration; at most 25
         arcsec from the astrometric ones, inside the cone's two pixels of
-        slack) and ``R`` is the ICRS attitude.
+        slack) and ``R`` is the ICRS attitude. ``extra`` (k, 3): directions
+        projected with them as they are (already apparent), those in the image
+        last, with index -1.
         """
         near, seen, keys = self._near(R[2], self._cone_radius(camera))
         if keys is not None and key_max < math.inf:
@@ -107,6 +109,9 @@ class Projector:
             near, seen = near[:upto], seen[:upto]
         if beta is not None:
             seen = aberrate(seen, beta)
+        if extra is not None:
+            seen = np.concatenate((seen, extra))
+            near = np.concatenate((near, np.full(len(extra), -1, near.dtype)))
         cam = seen @ R.T
         pix = camera.vector_to_pixel(cam)
         inside = camera.in_frame(pix, margin_px)
