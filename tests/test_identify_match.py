@@ -1,8 +1,10 @@
-"""match_nearest: the sorted-window search gives what an all-pairs search gives."""
+"""match_nearest: the sorted-window search gives what an all-pairs search gives, and its
+all-pairs path for small inputs (a windowed frame's) the very same pairs."""
 
 import numpy as np
 import pytest
 
+from tracker.identify import verify
 from tracker.identify.verify import match_nearest
 
 
@@ -42,3 +44,29 @@ def test_empty_inputs():
     assert idx.shape == (0,)
     idx, dist = match_nearest(np.zeros((3, 2)), np.zeros((0, 2)), 2.0)
     assert (idx == -1).all() and np.isinf(dist).all()
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_small_inputs_pair_as_the_sorted_search_does(seed, monkeypatch):
+    """Below _DENSE_PAIRS all pairs are compared: the same indices and distances as the
+    sorted-window search, ties at equal distance (whole-pixel positions, a prediction
+    given twice) and NaN included."""
+    rng = np.random.default_rng(seed)
+    cases = []
+    for _ in range(200):
+        n, m = rng.integers(1, 60, 2)
+        span = rng.choice([30.0, 300.0])
+        xy, pred = rng.uniform(0, span, (n, 2)), rng.uniform(0, span, (m, 2))
+        xy[: n // 2], pred[: m // 2] = np.round(xy[: n // 2]), np.round(pred[: m // 2])
+        if m > 1:
+            pred[1] = pred[0]
+            xy[0] = pred[0]
+        xy[-1, 0] = np.nan
+        cases.append((xy, pred, rng.uniform(0.5, 15.0)))
+    dense = [match_nearest(*case) for case in cases]
+    assert all(len(c[0]) * len(c[1]) <= verify._DENSE_PAIRS for c in cases)
+    monkeypatch.setattr(verify, "_DENSE_PAIRS", 0)
+    for (xy, pred, radius), (idx, dist) in zip(cases, dense, strict=True):
+        want_idx, want_dist = match_nearest(xy, pred, radius)
+        assert np.array_equal(idx, want_idx)
+        assert np.array_equal(dist, want_dist)

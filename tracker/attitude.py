@@ -44,26 +44,23 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
     Uses the numerically stable branch on the largest diagonal term
     (Shepperd's method).
     """
-    R = np.asarray(R, dtype=np.float64)
-    tr = R[0, 0] + R[1, 1] + R[2, 2]
-    cands = np.array([tr, R[0, 0], R[1, 1], R[2, 2]])
-    k = int(np.argmax(cands))
+    # Python floats: a dozen scalar operations on numpy scalars cost ten times the work
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(R, dtype=np.float64).tolist()
+    tr = r00 + r11 + r22
+    cands = (tr, r00, r11, r22)
+    k = cands.index(max(cands))        # the first largest, as argmax
     if k == 0:
         w = 0.5 * np.sqrt(1.0 + tr)
-        q = [w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w),
-             (R[1, 0] - R[0, 1]) / (4 * w)]
+        q = [w, (r21 - r12) / (4 * w), (r02 - r20) / (4 * w), (r10 - r01) / (4 * w)]
     elif k == 1:
-        x = 0.5 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = [(R[2, 1] - R[1, 2]) / (4 * x), x, (R[0, 1] + R[1, 0]) / (4 * x),
-             (R[0, 2] + R[2, 0]) / (4 * x)]
+        x = 0.5 * np.sqrt(1.0 + r00 - r11 - r22)
+        q = [(r21 - r12) / (4 * x), x, (r01 + r10) / (4 * x), (r02 + r20) / (4 * x)]
     elif k == 2:
-        y = 0.5 * np.sqrt(1.0 - R[0, 0] + R[1, 1] - R[2, 2])
-        q = [(R[0, 2] - R[2, 0]) / (4 * y), (R[0, 1] + R[1, 0]) / (4 * y), y,
-             (R[1, 2] + R[2, 1]) / (4 * y)]
+        y = 0.5 * np.sqrt(1.0 - r00 + r11 - r22)
+        q = [(r02 - r20) / (4 * y), (r01 + r10) / (4 * y), y, (r12 + r21) / (4 * y)]
     else:
-        z = 0.5 * np.sqrt(1.0 - R[0, 0] - R[1, 1] + R[2, 2])
-        q = [(R[1, 0] - R[0, 1]) / (4 * z), (R[0, 2] + R[2, 0]) / (4 * z),
-             (R[1, 2] + R[2, 1]) / (4 * z), z]
+        z = 0.5 * np.sqrt(1.0 - r00 - r11 + r22)
+        q = [(r10 - r01) / (4 * z), (r02 + r20) / (4 * z), (r12 + r21) / (4 * z), z]
     q = np.asarray(q)
     q /= np.linalg.norm(q)
     return -q if q[0] < 0 else q
@@ -154,8 +151,9 @@ def attitude_covariance(obs: np.ndarray, sigma: float | np.ndarray) -> np.ndarra
     theta[0], theta[1] tilt the boresight and theta[2] is roll about it.
     """
     obs = np.asarray(obs, dtype=np.float64)
-    inv_var = np.broadcast_to(1.0 / np.square(sigma), obs.shape[:1])
-    F = np.eye(3) * inv_var.sum() - (obs.T * inv_var) @ obs
+    inv_var = 1.0 / np.square(sigma)
+    total = inv_var * len(obs) if np.ndim(inv_var) == 0 else np.sum(inv_var)
+    F = np.eye(3) * total - (obs.T * inv_var) @ obs
     # F is symmetric: its inverse by cofactors over the determinant (a LAPACK call from the
     # frame loop can cost a millisecond on a busy machine)
     (xx, xy, xz), (_, yy, yz), (_, _, zz) = F.tolist()

@@ -79,28 +79,31 @@ class CameraModel:
         ends = self.pixel_to_vector(np.array([[-0.5, self.cy], [self.width - 0.5, self.cy]]))
         return float(np.arccos(np.clip(ends[0] @ ends[1], -1.0, 1.0)))
 
-    def _distort(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r2 = u * u + v * v
-        scale = 1.0 + r2 * (self.k1 + self.k2 * r2)
-        return u * scale, v * scale
+    def _undistort(self, distorted: np.ndarray) -> np.ndarray:
+        """Invert the radial model: solve rho*(1+k1 rho^2+k2 rho^4) = rho_d for rho.
 
-    def _undistort(self, ud: np.ndarray, vd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Invert the radial model: solve rho*(1+k1 rho^2+k2 rho^4) = rho_d for rho."""
-        rho_d = np.hypot(ud, vd)
-        if self.k1 == 0.0 and self.k2 == 0.0:
-            return ud, vd
-        rho = rho_d.copy()
+        ``distorted`` (..., 2) the distorted normalised coordinates; returns
+        the ideal ones (a new array). Newton's method starts from the
+        first-order inverse rho_d / (1 + k1 rho_d^2 + k2 rho_d^4), within
+        about 2 k1^2 rho^5 of the root: two steps reach machine precision
+        for real lenses.
+        """
+        sq = distorted * distorted
+        rho_d = np.sqrt(sq[..., 0] + sq[..., 1])
+        r2 = rho_d * rho_d
+        rho = rho_d / (1.0 + r2 * (self.k1 + self.k2 * r2))
+        tolerance = 1e-16 * (1.0 + rho_d)
         for _ in range(_NEWTON_STEPS):
             r2 = rho * rho
             g = rho * (1.0 + r2 * (self.k1 + self.k2 * r2)) - rho_d
             dg = 1.0 + r2 * (3.0 * self.k1 + 5.0 * self.k2 * r2)
             step = g / dg
             rho = rho - step
-            if not np.any(np.abs(step) > 1e-16 * (1.0 + rho_d)):
-                break   # converged (quadratically: 3-5 steps for real lenses)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ratio = np.where(rho_d > 0, rho / np.where(rho_d > 0, rho_d, 1.0), 1.0)
-        return ud * ratio, vd * ratio
+            if not np.any(np.abs(step) > tolerance):
+                break   # converged (quadratically)
+        # rho / rho_d, 1 at the centre (rho_d = 0)
+        ratio = np.divide(rho, rho_d, out=np.ones_like(rho), where=rho_d > 0)
+        return distorted * ratio[..., None]
 
     def vector_to_pixel(self, vectors: np.ndarray) -> np.ndarray:
         """Project camera-frame vectors (..., 3) to pixels (..., 2).
@@ -109,22 +112,28 @@ class CameraModel:
         unit length.
         """
         vectors = np.asarray(vectors, dtype=np.float64)
-        z = vectors[..., 2]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            safe_z = np.where(z > 0, z, np.nan)
-            u = vectors[..., 0] / safe_z
-            v = vectors[..., 1] / safe_z
-        ud, vd = self._distort(u, v)
-        return np.stack([self.cx + self.f_px * ud, self.cy + self.f_px * vd], axis=-1)
+        z = vectors[..., 2:3]
+        # (u, v) = (X, Y) / Z; NaN behind the camera, without a warning
+        uv = np.divide(vectors[..., :2], z, out=np.full(vectors.shape[:-1] + (2,), np.nan),
+                       where=z > 0)
+        sq = uv * uv
+        r2 = sq[..., 0] + sq[..., 1]
+        uv *= (1.0 + r2 * (self.k1 + self.k2 * r2))[..., None]     # distorted
+        uv *= self.f_px
+        uv += (self.cx, self.cy)
+        return uv
 
     def pixel_to_vector(self, pixels: np.ndarray) -> np.ndarray:
         """Unit vectors (..., 3) in the camera frame for pixel positions (..., 2)."""
         pixels = np.asarray(pixels, dtype=np.float64)
-        ud = (pixels[..., 0] - self.cx) / self.f_px
-        vd = (pixels[..., 1] - self.cy) / self.f_px
-        u, v = self._undistort(ud, vd)
-        vec = np.stack([u, v, np.ones_like(u)], axis=-1)
-        return vec / np.linalg.norm(vec, axis=-1, keepdims=True)
+        uv = (pixels - (self.cx, self.cy)) / self.f_px
+        if self.k1 != 0.0 or self.k2 != 0.0:
+            uv = self._undistort(uv)
+        vec = np.ones(uv.shape[:-1] + (3,))
+        vec[..., :2] = uv
+        sq = vec * vec
+        vec /= np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])[..., None]
+        return vec
 
     def in_frame(self, pixels: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Boolean mask: pixel positions inside the image, ``margin`` px from its edge."""

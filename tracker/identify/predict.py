@@ -32,7 +32,7 @@ import numpy as np
 
 from tracker.camera import CameraModel
 
-__all__ = ["TrackPrediction", "pixel_jacobian", "predict_positions", "informative",
+__all__ = ["TrackPrediction", "pixel_jacobian", "spread_and_smear", "informative",
            "CENTROID_FLOOR_PX", "CENTROID_SPREAD_PX"]
 
 # A predicted star's centroid 1-sigma per axis, sigma^2 = FLOOR^2 + (SPREAD / snr)^2: the
@@ -71,22 +71,20 @@ def pixel_jacobian(camera: CameraModel, cam_vectors: np.ndarray) -> np.ndarray:
     return J * camera.f_px
 
 
-def predict_positions(camera: CameraModel, R: np.ndarray, vectors: np.ndarray,
-                      P_theta: np.ndarray, omega: np.ndarray,
-                      exposure_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(xy, radial sigma, smear) in px of ICRS (or apparent) ``vectors`` (m, 3) at ``R``.
+def spread_and_smear(camera: CameraModel, cam_vectors: np.ndarray, P_theta: np.ndarray,
+                     omega: np.ndarray, exposure_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(radial sigma (m,), smear (m, 2)) in px of stars at camera-frame directions
+    ``cam_vectors`` (m, 3), the attitude's error covariance ``P_theta`` (3, 3, rad^2,
+    module docstring), the body rate ``omega`` (rad/s, camera frame) and
+    ``exposure_s`` the exposure time.
 
-    ``P_theta`` (3, 3) the attitude's error covariance (rad^2, module
-    docstring), ``omega`` the body rate (rad/s, camera frame), ``exposure_s``
-    the exposure time.
+    sigma^2 = trace(J P J^T) = sum over J's rows of j P j^T, all stars in one
+    contraction.
     """
-    cam = np.asarray(vectors, dtype=np.float64) @ np.asarray(R).T
-    xy = camera.vector_to_pixel(cam)
-    J = pixel_jacobian(camera, cam)
-    cov = np.einsum("mij,jk,mlk->mil", J, P_theta, J)
-    sigma = np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 0.0))
+    J = pixel_jacobian(camera, cam_vectors)
+    sigma = np.sqrt(np.maximum(np.einsum("mij,jk,mik->m", J, P_theta, J), 0.0))
     smear = J @ (-np.asarray(omega, dtype=np.float64) * exposure_s)
-    return xy, sigma, smear
+    return sigma, smear
 
 
 def informative(xy: np.ndarray, snr: np.ndarray, centre: tuple[float, float],

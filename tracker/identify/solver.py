@@ -82,7 +82,7 @@ from tracker.identify.predict import (
     TrackPrediction,
     informative,
     pixel_jacobian,
-    predict_positions,
+    spread_and_smear,
 )
 from tracker.identify.verify import Projector, false_match_probability, match_nearest
 from tracker.timing import StageTimer
@@ -178,6 +178,18 @@ class Solution:
                 "lens": self.lens.to_json() if self.lens is not None else None}
 
 
+def _median(values: np.ndarray) -> float:
+    """np.median of a non-empty 1-D array (the mean of the two middle values when even),
+    by one partition: np.median's own wrapper costs ten times the work on a frame's
+    few dozen values."""
+    n = len(values)
+    k = n // 2
+    if n % 2:
+        return float(np.partition(values, k)[k])
+    middle = np.partition(values, (k - 1, k))
+    return float((middle[k - 1] + middle[k]) / 2.0)
+
+
 def _not_duplicate(xy: np.ndarray, radius: float) -> np.ndarray:
     """Mask dropping every star within ``radius`` px of a brighter (earlier) one."""
     order = np.argsort(xy[:, 0], kind="stable")
@@ -246,7 +258,8 @@ class Solver:
         self._cat_mag = np.asarray(catalogue.mag, dtype=np.float64)
         self._search = PatternSearch(bound, cfg.pattern_tolerance_px, cfg.min_separation_px)
         self._db_proj = Projector(bound.vectors)
-        self._cat_proj = Projector(self._cat_vectors, reuse_cone_rad=_CONE_REUSE_RAD)
+        self._cat_proj = Projector(self._cat_vectors, reuse_cone_rad=_CONE_REUSE_RAD,
+                                   key=self._cat_mag)
         self._area = float(camera.width * camera.height)
         self._timer = StageTimer()
         self._prior = lens_prior(cfg, camera)
@@ -439,30 +452,27 @@ class Solver:
         R = self._predicted(t_ns)
         camera = self.lens_camera()
         beta = None if observer is None else observer.beta()
-        cat_idx, pix = self._cat_proj.predict(R, camera, beta=beta)   # in the image
-        mag = self._cat_mag[cat_idx]
-        order = np.argsort(mag, kind="stable")
-        bright = order[:np.count_nonzero(mag <= self._faintest + cfg.track_window_mag_margin)]
-        cat_idx = cat_idx[bright]
-        named = np.arange(len(cat_idx))
-        if self._snr_zero is not None:
-            snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[cat_idx])
-            named = informative(pix[bright], snr, (camera.cx, camera.cy),
-                                cfg.track_window_information)
-        cat_idx = cat_idx[named[:cfg.track_window_stars]]
-        # positions, uncertainties and smears of the stars given windows only
-        ref = self._cat_vectors[cat_idx]
-        if beta is not None:
-            ref = aberrate(ref, beta)
-        vectors = np.concatenate((ref, self._unknown[:cfg.track_window_unknown]))
+        # the catalogue stars in the image bright enough, brightest first (the cone is kept
+        # by magnitude: only those are projected), then the unidentified stars followed
+        # that are in the image (index -1)
+        found, cam, pix = self._cat_proj.project(
+            R, camera, beta=beta, key_max=self._faintest + cfg.track_window_mag_margin,
+            extra=self._unknown[:cfg.track_window_unknown])
+        named = len(found) - np.count_nonzero(found < 0)
+        if self._snr_zero is None:
+            rows = np.arange(min(named, cfg.track_window_stars))
+        else:
+            snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[found[:named]])
+            rows = informative(pix[:named], snr, (camera.cx, camera.cy),
+                               cfg.track_window_information)[:cfg.track_window_stars]
+        rows = np.concatenate((rows, np.arange(named, len(found))))
+        catalogue, cam, xy = found[rows], cam[rows], pix[rows]
+        # uncertainties and smears of the stars given windows only
         accel = math.radians(cfg.track_accel_deg_s2) * 0.5 * dt * dt
         P = self._last_P + self._rate_P * dt * dt + np.eye(3) * accel * accel
-        xy, sigma, smear = predict_positions(camera, R, vectors, P, -self._rate, exposure_s)
-        rows = np.concatenate((np.arange(len(cat_idx)),
-                               len(cat_idx) + np.flatnonzero(camera.in_frame(xy[len(cat_idx):]))))
-        catalogue = np.concatenate((cat_idx, np.full(len(vectors) - len(cat_idx), -1)))
-        return TrackPrediction(R=R, xy=xy[rows], sigma_px=sigma[rows], smear_px=smear[rows],
-                               catalogue=catalogue[rows], dt_s=dt)
+        sigma, smear = spread_and_smear(camera, cam, P, -self._rate, exposure_s)
+        return TrackPrediction(R=R, xy=xy, sigma_px=sigma, smear_px=smear,
+                               catalogue=catalogue, dt_s=dt)
 
     def smear_px(self, xy: np.ndarray, t_ns: int, exposure_s: float) -> np.ndarray | None:
         """(n, 2) travel of image positions ``xy`` over an exposure at ``t_ns``, px.
@@ -568,7 +578,7 @@ class Solver:
         """
         if len(residuals) < 3:
             return self.cfg.match_radius_px
-        sigma = float(np.median(residuals)) / 1.1774
+        sigma = _median(residuals) / 1.1774
         return min(max(self.cfg.match_radius_px, 3.5 * sigma), self._first_radius())
 
     def _verify(self, hyp: Hypothesis, camera: CameraModel, xy, trials: float):
@@ -609,7 +619,7 @@ class Solver:
         rows = np.flatnonzero(ok)
         inst = -2.5 * np.log10(np.maximum(flux[rows], 1e-30))
         diff = self._cat_mag[cat_idx[which[rows]]] - inst
-        off = np.abs(diff - np.median(diff)) > self.cfg.mag_tolerance
+        off = np.abs(diff - _median(diff)) > self.cfg.mag_tolerance
         ok[rows[off]] = False
 
     def _match_catalogue(self, R, camera, xy, flux, radius: float, subset=None):
@@ -691,7 +701,7 @@ class Solver:
             snr = self._snr[ok]
             seen = snr > 0
             if seen.any():
-                self._snr_zero = float(np.median(np.log10(snr[seen]) + 0.4 * mags[seen]))
+                self._snr_zero = _median(np.log10(snr[seen]) + 0.4 * mags[seen])
         faintest = float(mags.max())
         if math.isfinite(self._faintest):
             faintest = max(faintest, self._faintest - _FAINTEST_DECAY_MAG)
@@ -706,7 +716,9 @@ class Solver:
         lens_cam = self.lens_camera()
         observed = self._observed(lens_cam, xy)
         obs = observed[ok]
-        R = solve_wahba(obs, ref)
+        if not (pairs is not None and lens_cam is camera and np.array_equal(ok, pairs >= 0)):
+            # (else the gated pass solved it from these stars through this lens: that R)
+            R = solve_wahba(obs, ref)
         resid2 = float(np.square(obs - ref @ R.T).sum())
         sigma0 = cfg.centroid_sigma_px / lens_cam.f_px
         sigma = math.sqrt((resid2 + _PRIOR_DOF * sigma0 ** 2)

@@ -30,6 +30,8 @@ from tracker.identify.skyindex import DecSorted
 
 __all__ = ["Projector", "match_nearest", "binomial_tail", "false_match_probability"]
 
+_DENSE_PAIRS = 4096   # match_nearest compares all pairs up to this many
+
 
 class Projector:
     """Predicts where catalogue stars fall in the image for an attitude R and a lens.
@@ -37,27 +39,39 @@ class Projector:
     ``vectors`` (N, 3) are ICRS unit vectors (the catalogue's or the
     database's). Only stars in the declination band of the field are
     looked at (tracker.identify.skyindex). With ``reuse_cone_rad`` > 0 the
-    cone is searched that much wider and reused while the optical axis
-    stays within that angle of the cone's (tracking: three predictions a
-    frame, and frames after frame, from one search).
+    cone is searched that much wider and reused, with its stars' vectors,
+    while the optical axis stays within that angle of the cone's (tracking:
+    three predictions a frame, and frames after frame, from one search).
+    With ``key`` (N,), e.g. magnitudes, the cone's stars are kept in the
+    order of their key (ascending; by index where equal) and a projection
+    may take only those up to a limit of it.
     """
 
-    def __init__(self, vectors: np.ndarray, reuse_cone_rad: float = 0.0) -> None:
+    def __init__(self, vectors: np.ndarray, reuse_cone_rad: float = 0.0,
+                 key: np.ndarray | None = None) -> None:
         self.vectors = np.ascontiguousarray(vectors, dtype=np.float64)
         self.index = DecSorted(self.vectors)
         self.reuse = float(reuse_cone_rad)
-        self._cone: tuple[np.ndarray, float, np.ndarray] | None = None
+        self.key = None if key is None else np.asarray(key, dtype=np.float64)
+        # (axis, radius, indices, their vectors, their keys) of the last cone searched
+        self._cone: tuple | None = None
 
-    def _near(self, axis: np.ndarray, radius: float) -> np.ndarray:
-        """Sorted indices of (at least) the vectors within ``radius`` of ``axis``."""
+    def _near(self, axis: np.ndarray, radius: float) -> tuple:
+        """(indices, vectors, keys or None) of (at least) the vectors within ``radius`` of
+        ``axis``: ascending indices, or by key (class docstring)."""
         if self.reuse > 0.0 and self._cone is not None:
-            c_axis, c_radius, near = self._cone
+            c_axis, c_radius, *found = self._cone
             if c_radius >= radius and float(np.dot(axis, c_axis)) >= math.cos(c_radius - radius):
-                return near
+                return found
         near = np.sort(self.index.cone(axis, radius + self.reuse))
+        keys = None
+        if self.key is not None:
+            near = near[np.argsort(self.key[near], kind="stable")]
+            keys = self.key[near]
+        found = [near, self.vectors[near], keys]
         if self.reuse > 0.0:
-            self._cone = (np.array(axis, dtype=np.float64), radius + self.reuse, near)
-        return near
+            self._cone = (np.array(axis, dtype=np.float64), radius + self.reuse, *found)
+        return found
 
     @staticmethod
     def _cone_radius(camera: CameraModel) -> float:
@@ -75,21 +89,40 @@ class Projector:
         rho /= max(0.5, 1.0 + r2 * (camera.k1 + camera.k2 * r2))
         return 1.01 * math.atan(rho) + 2.0 / camera.f_px
 
-    def predict(self, R: np.ndarray, camera: CameraModel, margin_px: float = 0.0,
-                beta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Indices (into ``vectors``) and pixel positions (m, 2) of stars in the image.
+    def project(self, R: np.ndarray, camera: CameraModel, margin_px: float = 0.0,
+                beta: np.ndarray | None = None, key_max: float = math.inf,
+                extra: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(indices into ``vectors``, camera-frame vectors (m, 3), pixels (m, 2)) of the
+        stars in the image, ``margin_px`` inside its edge; with a ``key``, those whose
+        key is at most ``key_max``, in its order.
 
-        ``margin_px`` keeps predictions this far inside the image. With
-        ``beta`` (the observer's velocity / c, ICRS) the stars are placed at
+        With ``beta`` (the observer's velocity / c, ICRS) the stars are placed at
         their apparent directions (tracker.astrometry.aberration; at most 25
         arcsec from the astrometric ones, inside the cone's two pixels of
-        slack) and ``R`` is the ICRS attitude.
+        slack) and ``R`` is the ICRS attitude. ``extra`` (k, 3): directions
+        projected with them as they are (already apparent), those in the image
+        last, with index -1.
         """
-        near = self._near(R[2], self._cone_radius(camera))
-        seen = self.vectors[near] if beta is None else aberrate(self.vectors[near], beta)
-        pix = camera.vector_to_pixel(seen @ R.T)
+        near, seen, keys = self._near(R[2], self._cone_radius(camera))
+        if keys is not None and key_max < math.inf:
+            upto = int(np.searchsorted(keys, key_max, side="right"))
+            near, seen = near[:upto], seen[:upto]
+        if beta is not None:
+            seen = aberrate(seen, beta)
+        if extra is not None:
+            seen = np.concatenate((seen, extra))
+            near = np.concatenate((near, np.full(len(extra), -1, near.dtype)))
+        cam = seen @ R.T
+        pix = camera.vector_to_pixel(cam)
         inside = camera.in_frame(pix, margin_px)
-        return near[inside], pix[inside]
+        return near[inside], cam[inside], pix[inside]
+
+    def predict(self, R: np.ndarray, camera: CameraModel, margin_px: float = 0.0,
+                beta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Indices (into ``vectors``) and pixel positions (m, 2) of stars in the image
+        (:meth:`project`)."""
+        near, _, pix = self.project(R, camera, margin_px, beta)
+        return near, pix
 
 
 def match_nearest(xy: np.ndarray, pred: np.ndarray, radius: float) -> tuple[np.ndarray,
@@ -103,6 +136,9 @@ def match_nearest(xy: np.ndarray, pred: np.ndarray, radius: float) -> tuple[np.n
     Cost O((n + m) log m + pairs): predictions are sorted by x and each star
     looks only at those within ``radius`` in x, so tracking 200 stars
     against 1,000 predictions compares a few thousand pairs, not 200,000.
+    Up to ``_DENSE_PAIRS`` pairs (a windowed frame's 30 stars and 30
+    predictions) all pairs are compared at once instead: a third of the
+    numpy calls, the same pairs.
     """
     n = len(xy)
     idx = np.full(n, -1, dtype=np.int64)
@@ -110,6 +146,20 @@ def match_nearest(xy: np.ndarray, pred: np.ndarray, radius: float) -> tuple[np.n
     if n == 0 or len(pred) == 0:
         return idx, dist
     order = np.argsort(pred[:, 0], kind="stable")
+    if n * len(pred) <= _DENSE_PAIRS:
+        # predictions in x order, as below: equal distances resolve alike
+        px, py = pred[order, 0], pred[order, 1]
+        d2 = np.square(xy[:, None, 0] - px) + np.square(xy[:, None, 1] - py)
+        d2[~(d2 <= radius * radius)] = np.inf               # out of reach (or NaN)
+        stars = np.arange(n)
+        near = d2.argmin(axis=1)                            # each star's nearest
+        best = d2[stars, near]
+        # a prediction claimed by several stars goes to the nearest claim
+        claims = np.where(near[:, None] == np.arange(len(pred)), d2, np.inf)
+        won = (best < np.inf) & (claims.argmin(axis=0)[near] == stars)
+        idx[won] = order[near[won]]
+        dist[won] = np.sqrt(best[won])
+        return idx, dist
     px = pred[order, 0]
     lo = np.searchsorted(px, xy[:, 0] - radius, side="left")
     hi = np.searchsorted(px, xy[:, 0] + radius, side="right")
