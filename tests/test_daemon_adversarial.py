@@ -246,13 +246,14 @@ def test_a_hostile_flight_computer_leaves_the_daemon_up_and_answered(tmp_path):
         ok_keys.append(fc.send(MsgId.TIME_SYNC, fc_time_ns=TAI_NS_MIN))
         ok_keys.append(fc.send(MsgId.SET_VELOCITY, t_ns=TAI_NS_MIN, vx_km_s=-200.0,
                                vy_km_s=200.0, vz_km_s=0.0))
-        ok_keys.append(fc.send(MsgId.REQUEST_STATUS))
-        got = fc.wait_for(answered(ok_keys))
+        status_key = fc.send(MsgId.REQUEST_STATUS)
+        ok_keys.append(status_key)
+        got = fc.wait_for(lambda ps: answered(ok_keys)(ps) and statuses_after(ps, status_key))
         n = len(got)
         got = fc.wait_for(lambda ps: sum(p.id == MsgId.ATTITUDE for p in ps[n:]) >= 3)
         # the FC's clock read 1972-01-01 at the sync: frames since are ms to s after it
         assert all(TAI_NS_MIN <= a["t_ns"] < TAI_NS_MIN + 10**10 for a in attitudes(got[n:]))
-        status = [p.values for p in got if p.id == MsgId.STATUS][-1]
+        status = statuses_after(got, status_key)[0]
         assert status["time_source"] == TimeSource.TIME_SYNC
         assert (status["exposure_us"], status["gain"]) == (cfg.capture.exposure_max_us,
                                                            cfg.capture.gain_max)
@@ -291,8 +292,10 @@ def test_a_hostile_flight_computer_leaves_the_daemon_up_and_answered(tmp_path):
         fc.reopen()
         time.sleep(0.2)
         key = fc.send(MsgId.REQUEST_STATUS)
-        got = fc.wait_for(answered([key]))
-        assert [p.values for p in got if p.id == MsgId.STATUS][-1]["link_reopens"] == 1
+        # the STATUS the request asked for (ACK first, then STATUS): not a periodic one sent
+        # before the reopen and still the last in the list when the ACK arrived
+        got = fc.wait_for(lambda ps: key in replies(ps) and statuses_after(ps, key))
+        assert statuses_after(got, key)[0]["link_reopens"] == 1
         must_answer.append(key)
 
         # 9. a PING flood at line rate (921600 baud: 7680 PINGs/s) for one second:
