@@ -32,7 +32,17 @@ last attitude and rate (for tracking) and the lens estimate.
    the fit to those gives this frame's focal length and sigma;
    the slow lens filter takes the frame's information, and the attitude is
    solved once more through the filtered lens (Wahba), with sigmas from the
-   residuals blended with the ``centroid_sigma_px`` prior.
+   residuals blended with the ``centroid_sigma_px`` prior. Wahba (here and
+   in tracking's gated pass) weights each star by its centroid's expected
+   precision, 1 / (``centroid_sigma_px``^2 + (``_CENTROID_SNR_PX`` / SNR)^2),
+   when the detector gave every star an SNR: a faint star found in a
+   tracking window (where the full frame's threshold would not have kept
+   it) or smeared by a slew is centred two to three times worse than a
+   bright one and no longer counts as much (tracker.bench.track's slews, 6 s
+   each, windowed and full-frame alike: 8 mm at 3 deg/s, 4 slews,
+   cross-boresight RMS 9-16 % lower, roll 5-13 %; 16 mm at 1 deg/s, 2
+   slews, 9-25 % and 9-21 %). The reported sigmas stay those of equal
+   weights (conservative).
 
 Aberration: with the frame's observer context (an absolute time, perhaps a
 velocity: tracker.astrometry.observer) the catalogue directions of tracking
@@ -96,6 +106,9 @@ _CONE_REUSE_RAD = math.radians(0.5)   # tracking's catalogue cone: 0.5 deg wider
 # the faintest magnitude tracking expects to see falls by at most this a frame: a star
 # at the detection limit, seen in one frame in two, keeps the windows' count steady
 _FAINTEST_DECAY_MAG = 0.02
+# a centroid's noise per axis is about this over its star's SNR, px: sqrt(2) sigma for a
+# Gaussian spot of sigma 1.2 px (the configured PSF) limited by its background's noise
+_CENTROID_SNR_PX = 1.7
 
 
 @dataclass(frozen=True)
@@ -542,7 +555,19 @@ class Solver:
         ok = which >= 0
         if np.count_nonzero(ok) < self.cfg.min_matched:
             return None
-        return solve_wahba(self._observed(camera, xy)[ok], self._seen(cat_idx[which[ok]])), which
+        return solve_wahba(self._observed(camera, xy)[ok], self._seen(cat_idx[which[ok]]),
+                           self._weights(ok)), which
+
+    def _weights(self, ok: np.ndarray) -> np.ndarray | None:
+        """Wahba's weights (module docstring, refinement) of this frame's stars ``ok``
+        (a mask over them as _prepare ordered them), or None (equal) when some star has no
+        positive SNR."""
+        if self._snr is None:
+            return None
+        snr = self._snr[ok]
+        if not np.all(snr > 0):                       # (NaN fails it too)
+            return None
+        return 1.0 / (self.cfg.centroid_sigma_px ** 2 + np.square(_CENTROID_SNR_PX / snr))
 
     def _seen(self, cat_idx: np.ndarray) -> np.ndarray:
         """Catalogue directions as this frame's observer sees them (module docstring)."""
@@ -718,7 +743,7 @@ class Solver:
         obs = observed[ok]
         if not (pairs is not None and lens_cam is camera and np.array_equal(ok, pairs >= 0)):
             # (else the gated pass solved it from these stars through this lens: that R)
-            R = solve_wahba(obs, ref)
+            R = solve_wahba(obs, ref, self._weights(ok))
         resid2 = float(np.square(obs - ref @ R.T).sum())
         sigma0 = cfg.centroid_sigma_px / lens_cam.f_px
         sigma = math.sqrt((resid2 + _PRIOR_DOF * sigma0 ** 2)
