@@ -288,3 +288,31 @@ def test_psf_mode_takes_a_cluster_whose_scatter_fills_the_agreement_window():
     est = _combined([1.45, 1.5, 1.52, 1.55, 1.6, 0.6, 0.62, 0.65])
     assert est is not None and est.stars == 5 and abs(est.sigma_px - 1.52) < 0.02
     assert _combined([2.0, 2.3, 2.7, 3.1, 3.6]) is None     # no five agree
+
+
+@pytest.mark.parametrize("sigma", [0.6, 0.9, 1.5, 2.0])
+def test_stars_cut_by_the_frames_edge_are_centred_on_the_light_inside_it(sigma):
+    """Stars 0.25-1.5 px inside each of the four edges (pixel centres 0 and size - 1),
+    at sub-pixel phases along it, peaks at 50 % of the ADC, rounding the only noise: a
+    window reaching beyond the frame reads zeros there, which pulled the fit of the
+    pixel-integrated PSF inward by 0.15 px (sigma 0.6) to 0.55 px (sigma 1.5). Fitted on
+    the pixels the frame holds, every centre found is within 0.08 px (the frame's
+    measured PSF, a few per cent off an undersampled one, is the rest), and those 1.5 px
+    in are all found."""
+    shape = (400, 400)
+    offs = np.arange(1, 7) * 0.25
+    along = 30 + np.arange(len(offs)) * 50 + np.arange(len(offs)) / len(offs)
+    ex = np.concatenate([offs, along, shape[1] - 1 - offs, along + 0.3])
+    ey = np.concatenate([along + 0.5, offs, along + 0.7, shape[0] - 1 - offs])
+    grid = np.arange(60, 341, 56) + 0.37      # inner stars that measure the PSF
+    ix, iy = (a.ravel() for a in np.meshgrid(grid, grid + 0.21))
+    xs, ys = np.concatenate([ex, ix]), np.concatenate([ey, iy])
+    flux = 0.5 * ADC_FULL_E / _peak_fraction(sigma)
+    frame = render_points(shape, xs, ys, np.full(len(xs), flux), CLEAN,
+                          np.random.default_rng(2), noise_model="none", psf_sigma_px=sigma)
+    stars = make_detector(CFG, shape, 10).detect(frame.image).stars
+    d = np.hypot(ex[:, None] - stars["x"][None, :], ey[:, None] - stars["y"][None, :])
+    near = d.min(axis=1)
+    found = near < 2.0
+    assert found[np.tile(offs, 4) == 1.5].all()
+    assert near[found].max() < 0.08, near

@@ -326,7 +326,7 @@ class DefaultDetector:
         self.centroider = WindowedCentroider(
             layout.stride, max_radius, gain=2.0, iterations=cfg.centroid_iterations,
             tolerance=cfg.centroid_tolerance_px, max_shift=1.5, capacity=cfg.max_candidates,
-            dtype=np.uint16, chunk=_CHUNK,
+            dtype=np.uint16, chunk=_CHUNK, layout=layout,
             fit=None if cfg.centroid_noise == "multiplicative" else self.fit)
         # multiplicative noise: the likelihood fit reads the frame as delivered, since
         # the impulse filter takes the spikes of speckle for hot pixels

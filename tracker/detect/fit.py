@@ -18,7 +18,10 @@ ADU, i.e. gains near 1 e-/ADU; the weights only set how pixels share the
 information, so a gain several times off costs a few per cent of
 precision, never bias). Pixels at or above ``saturation`` are left out
 (censored): a clipped pixel says only "at least full scale", so saturated
-stars are centred on their unclipped wings by the same fit.
+stars are centred on their unclipped wings by the same fit. Pixels beyond
+the frame's edge are left out the same way (they say nothing): a star cut
+by the edge is fitted on the part the frame holds, its centre free to lie
+beyond the edge.
 
 Every step is clamped to ``max_shift`` px from the window's centre pixel.
 
@@ -164,13 +167,18 @@ class PixelGaussianFit:
         np.copyto(grad[:, 2], by_fy[:, 1])
 
     def run(self, m: int, signal: np.ndarray, raw: np.ndarray, x: np.ndarray, y: np.ndarray,
-            noise: np.ndarray, saturation: float, max_shift: float) -> np.ndarray:
+            noise: np.ndarray, saturation: float, max_shift: float,
+            inside: np.ndarray | None = None) -> np.ndarray:
         """Refine centres ``x``, ``y`` (m,) in place; returns the fitted fluxes (m,).
 
         ``signal`` (m, side^2): background-subtracted windows, ADU; ``raw``
         the same pixels as delivered (for the saturation test); centres are
         px from each window's centre pixel; ``noise`` (m,) the background's
-        pixel noise, ADU. A star whose normal matrix is singular keeps its
+        pixel noise, ADU. ``inside`` (m, side^2), if given, is false for the
+        window's pixels beyond the frame's edge: they are left out like
+        clipped ones, so a star cut by the edge is fitted on the light the
+        frame holds and its centre may lie beyond the edge (up to
+        ``max_shift``). A star whose normal matrix is singular keeps its
         centre.
         """
         v = self._views(m)
@@ -181,6 +189,8 @@ class PixelGaussianFit:
         np.maximum(flux, 1.0, out=flux)
         usable = v["usable"]
         np.less(raw.reshape(grid), saturation, out=usable)   # 1.0 where not clipped
+        if inside is not None:
+            np.multiply(usable, inside.reshape(grid), out=usable)
         noise2 = np.maximum(np.square(noise[:m]), _MIN_VAR)[:, None, None]
         normal, grad = self._normal[:m], self._grad[:m]
         w, model, resid = v["weight"], v["model"], v["resid"]

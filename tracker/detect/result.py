@@ -32,7 +32,8 @@ class StarFlag:
     """Bits of the ``flags`` field."""
 
     SATURATED = 1   # a pixel reached the sensor's full scale
-    EDGE = 2        # the spot touches the image border; centroid biased
+    EDGE = 2        # the centroid's window reaches beyond the frame: a star at SNR >= 10
+                    # is fitted on the pixels inside, a fainter one's centre is pulled inward
     ELONGATED = 4   # second moments say streak or trail, not a point
     BLENDED = 8     # split from a segment shared with another star
     EXTENDED = 16   # much broader than the frame's point sources: nebula, comet,

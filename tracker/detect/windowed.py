@@ -39,6 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from tracker.detect.fit import PixelGaussianFit
+from tracker.detect.layout import PaddedLayout
 from tracker.detect.multiplicative import MultiplicativeFit
 
 __all__ = ["WindowedCentroider", "later_within", "second_moments"]
@@ -60,13 +61,17 @@ class WindowedCentroider:
     per frame) is. With ``fit`` (tracker.detect.fit) the centres of each
     chunk's significant, unblended stars are then refined by a fit of the
     pixel-integrated PSF (the shape figures stay those of the windowed
-    centre).
+    centre). Given the ``layout`` of the padded image, a star whose window
+    reaches beyond the frame is fitted on the window's pixels inside it, its
+    centre free to lie up to ``max_shift`` px beyond the edge.
     """
 
     def __init__(self, stride: int, max_radius: int, gain: float, iterations: int,
                  tolerance: float, max_shift: float, capacity: int, dtype: type = np.float32,
-                 chunk: int = 256, fit: PixelGaussianFit | None = None) -> None:
+                 chunk: int = 256, fit: PixelGaussianFit | None = None,
+                 layout: PaddedLayout | None = None) -> None:
         self.stride = int(stride)
+        self.layout = layout
         self.max_radius = int(max_radius)
         self.base_gain = float(gain)
         self.iterations = int(iterations)
@@ -164,14 +169,35 @@ class WindowedCentroider:
         self._photometry(m, c, v, noise)
         if self.fit is not None:
             fit = v["snr"] >= _FIT_MIN_SNR
+            inside = self._inside(cand)
             if blended is not None:
                 fit &= ~blended
             rows = np.flatnonzero(fit)
             if len(rows):
                 x, y = x0[rows], y0[rows]
                 self.fit.run(len(rows), s[rows], win[rows], x, y, noise[rows], saturation,
-                             self.max_shift)
+                             self.max_shift, None if inside is None else inside[rows])
                 x0[rows], y0[rows] = x, y
+
+    def _inside(self, cand: np.ndarray) -> np.ndarray | None:
+        """(m, window pixels) true for the pixels of the windows around the padded flat
+        indices ``cand`` (m,) that lie in the frame; None when every one does (or
+        there is no layout)."""
+        if self.layout is None:
+            return None
+        rows, cols = self.layout.frame_position(cand)
+        r = self.radius
+        near = ((rows < r) | (cols < r) | (rows >= self.layout.rows - r)
+                | (cols >= self.layout.cols - r))
+        if not near.any():
+            return None
+        inside = np.ones((len(cand), len(self.offsets)), bool)
+        at = np.flatnonzero(near)
+        row = rows[at, None] + self.dy[None, :]
+        col = cols[at, None] + self.dx[None, :]
+        inside[at] = ((row >= 0) & (row < self.layout.rows)
+                      & (col >= 0) & (col < self.layout.cols))
+        return inside
 
     def refine_multiplicative(self, n: int, fit: MultiplicativeFit, cand: np.ndarray,
                               delivered_pad: np.ndarray, bg_pad: np.ndarray, level: np.ndarray,
