@@ -158,6 +158,10 @@ class ImpulseFilter:
                                         for dx in (-1, 0, 1)], np.intp)
         self.window_values = np.zeros((self.capacity, 9), dtype)
         self.replaced = np.zeros(self.capacity, np.bool_)
+        self.stale = np.zeros(self.capacity, np.bool_)     # to be judged again (_retest)
+        self.sub_index = np.zeros(self.capacity, np.intp)   # _retest_some's candidates
+        self.sub_values = np.zeros((4, self.capacity), np.float32)
+        self.sub_flags = np.zeros(self.capacity, np.bool_)
         self.charge = np.zeros(self.capacity, np.bool_)   # replaced, and above its median
         self.ring = np.zeros(self.capacity, np.float32)
         self.lone = np.zeros(self.capacity, np.bool_)
@@ -253,16 +257,22 @@ class ImpulseFilter:
         n = self._n
         if n == 0:
             return self.index[:0]
-        idx = self.index[:n]
+        # A maximum is not below its 3x3 median, and a candidate differs from it: only
+        # those above it (the spared ones keep their value, the replaced ones now equal
+        # it) are looked at, about a third of the list, in raster order as listed.
+        above = self.flags[:n]
+        np.greater(self.values[0, :n], self.values[1, :n], out=above)
+        k = int(np.count_nonzero(above))
+        idx = self.area[:k]
+        np.compress(above, self.index[:n], out=idx)
         flat = work_pad.ravel()
-        nb_index = self.neighbour_index[:n]
+        nb_index = self.neighbour_index[:k]
         np.add(idx[:, None], self.neighbour_offsets[None, :], out=nb_index)
-        np.take(flat, nb_index, out=self.window_values[:n, :8], mode="clip")
-        np.max(self.window_values[:n, :8], axis=1, out=self.reads[:n])
-        np.take(flat, idx, out=self.window_values[:n, 8], mode="clip")
-        peak = self.flags[:n]
-        np.greater_equal(self.window_values[:n, 8], self.reads[:n], out=peak)
-        np.logical_and(peak, ~self.replaced[:n], out=peak)
+        np.take(flat, nb_index, out=self.window_values[:k, :8], mode="clip")
+        np.max(self.window_values[:k, :8], axis=1, out=self.reads[:k])
+        np.take(flat, idx, out=self.window_values[:k, 8], mode="clip")
+        peak = self.flags[:k]
+        np.greater_equal(self.window_values[:k, 8], self.reads[:k], out=peak)
         return np.compress(peak, idx)
 
     def refine(self, work_pad: np.ndarray, bg_pad: np.ndarray, limit_pad: np.ndarray,
@@ -293,9 +303,12 @@ class ImpulseFilter:
         n = self._n
         if n == 0:
             return self.counts
+        self.stale[:n] = True           # every candidate is judged with the new cut
         for step in range(_GROW_STEPS + 1):
             if step:
+                listed = n
                 n = self._grow(n, work_pad, bg_pad, limit_pad)
+                self.stale[listed:n] = True
             self._retest(n, work_pad, min(contrast, self.contrast), ring)
         self._count(n, self.index[:n], self.replaced[:n], self.charge[:n])
         if mirror_pad is not None:
@@ -435,42 +448,79 @@ class ImpulseFilter:
         return track
 
     def _retest(self, n: int, work_pad: np.ndarray, contrast: float, ring: float) -> None:
+        """Up to ``_REFINE_PASSES`` passes of the tests over the ``stale`` candidates of the
+        first ``n``: a candidate is judged again only when a pixel of its 3x3 window
+        changed since it was last judged (its tests read nothing else that changes), so
+        after the first pass only the few beside a replaced pixel are. The same
+        outcome as judging every candidate in every pass. Those touched by the last
+        pass's changes stay ``stale`` for the next call."""
         idx = self.index[:n]
-        w, m, b, lim = (v[:n] for v in self.values)
-        flat = work_pad.ravel()
-        nb_index = self.window_index[:n]
-        np.add(idx[:, None], self.window_offsets[None, :], out=nb_index)
-        window = self.window_values[:n]
-        replaced = self.replaced[:n]
-        around, lone = self.ring[:n], self.lone[:n]
+        np.put(self.stamp, idx, self.numbers[:n], mode="clip")   # candidate number + 1
         for _ in range(_REFINE_PASSES):
-            np.take(flat, nb_index, out=window, mode="clip")
-            if ring > 0.0:
-                # the neighbours' light above the background (the window less its centre)
-                np.sum(window, axis=1, out=around, dtype=np.float32)
-                np.subtract(around, window[:, 4], out=around)
-                np.subtract(around, 8.0 * b, out=around)
-            window.partition(4, axis=1)
-            np.copyto(m, window[:, 4])
-            np.take(flat, idx, out=self.reads[:n], mode="clip")
-            np.copyto(w, self.reads[:n])
-            np.copyto(w, m, where=replaced)
-            imp = _impulse_test(w, m, b, lim, contrast, self.sparse, n)
-            if ring > 0.0:
-                t1, t2 = self.sparse.t1[:n], self.sparse.t2[:n]
-                np.subtract(w, b, out=t1)                        # height
-                np.multiply(t1, ring, out=t1)
-                np.less(around, t1, out=lone)
-                np.subtract(w, m, out=t2)
-                np.greater(t2, lim, out=self.tmp_flags[:n])      # above its median by the limit
-                np.logical_and(lone, self.tmp_flags[:n], out=lone)
-                np.logical_or(imp, lone, out=imp)
-            np.greater(w, m, out=self.tmp_flags[:n])     # (a replaced pixel's w is m)
-            np.logical_and(self.tmp_flags[:n], imp, out=self.tmp_flags[:n])
-            np.logical_or(self.charge[:n], self.tmp_flags[:n], out=self.charge[:n])
-            np.copyto(w, m, where=imp)
-            np.put(flat, idx, w, mode="clip")
-            np.logical_or(replaced, imp, out=replaced)
+            sel = np.flatnonzero(self.stale[:n])
+            if len(sel) == 0:
+                break
+            self.stale[:n] = False
+            changed = self._retest_some(sel, work_pad, contrast, ring)
+            if len(changed):
+                near = self.area[: 9 * len(changed)].reshape(len(changed), 9)
+                np.add(changed[:, None], self.window_offsets[None, :], out=near)
+                number = np.take(self.stamp, near.ravel(), mode="clip")
+                self.stale[number[number > 0] - 1] = True
+        np.put(self.stamp, idx, 0, mode="clip")
+
+    def _retest_some(self, sel: np.ndarray, work_pad: np.ndarray, contrast: float,
+                     ring: float) -> np.ndarray:
+        """One pass of :meth:`refine`'s tests over the candidates ``sel`` (positions in the
+        list); replaced pixels take their window's median. Returns the pixels whose value
+        changed (padded flat indices)."""
+        k = len(sel)
+        idx = self.sub_index[:k]
+        np.take(self.index, sel, out=idx)
+        w, m, b, lim = (v[:k] for v in self.sub_values)
+        np.take(self.values[2], sel, out=b)
+        np.take(self.values[3], sel, out=lim)
+        flat = work_pad.ravel()
+        nb_index = self.window_index[:k]
+        np.add(idx[:, None], self.window_offsets[None, :], out=nb_index)
+        window = self.window_values[:k]
+        np.take(flat, nb_index, out=window, mode="clip")
+        around, lone = self.ring[:k], self.lone[:k]
+        if ring > 0.0:
+            # the neighbours' light above the background (the window less its centre)
+            np.sum(window, axis=1, out=around, dtype=np.float32)
+            np.subtract(around, window[:, 4], out=around)
+            np.subtract(around, 8.0 * b, out=around)
+        reads = self.reads[:k]
+        np.copyto(reads, window[:, 4])                 # the candidates' own values
+        window.partition(4, axis=1)
+        np.copyto(m, window[:, 4])
+        np.copyto(w, reads)
+        replaced = self.sub_flags[:k]
+        np.take(self.replaced, sel, out=replaced)
+        np.copyto(w, m, where=replaced)
+        imp = _impulse_test(w, m, b, lim, contrast, self.sparse, k)
+        if ring > 0.0:
+            t1, t2 = self.sparse.t1[:k], self.sparse.t2[:k]
+            np.subtract(w, b, out=t1)                        # height
+            np.multiply(t1, ring, out=t1)
+            np.less(around, t1, out=lone)
+            np.subtract(w, m, out=t2)
+            np.greater(t2, lim, out=self.tmp_flags[:k])      # above its median by the limit
+            np.logical_and(lone, self.tmp_flags[:k], out=lone)
+            np.logical_or(imp, lone, out=imp)
+        charge = self.tmp_flags[:k]
+        np.greater(w, m, out=charge)                 # (a replaced pixel's w is m)
+        np.logical_and(charge, imp, out=charge)
+        np.logical_or(np.take(self.charge, sel), charge, out=charge)
+        np.put(self.charge, sel, charge)
+        np.copyto(w, m, where=imp)
+        np.put(flat, idx, w, mode="clip")
+        np.logical_or(replaced, imp, out=replaced)
+        np.put(self.replaced, sel, replaced)
+        np.put(self.values[0], sel, w)
+        np.put(self.values[1], sel, m)
+        return np.compress(w != reads, idx)
 
     def _grow(self, n: int, work_pad: np.ndarray, bg_pad: np.ndarray,
               limit_pad: np.ndarray) -> int:
