@@ -64,8 +64,10 @@ handled, sigma 3.5 px):
    edge); a star beside the body keeps the sky on its side. With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
-   every centre instead, from the frame as delivered; the shape tests
-   (sharp spots, ELONGATED) are off, a speckled star's pixels being spiky,
+   every centre instead, from the frame as delivered, which step 5 then
+   filters too (a faint speckled star's spikes over a dark sky are what the
+   impulse stage clears); the shape tests (sharp spots, ELONGATED, EXTENDED
+   and bodies by flux/peak) are off, a speckled star's pixels being spiky,
    and candidates that end within 2 PSF sigma of a brighter one are
    dropped as its duplicates.
 
@@ -333,6 +335,8 @@ class DefaultDetector:
         self.speckle_fit = None
         if cfg.centroid_noise == "multiplicative":
             self.delivered_pad = np.zeros_like(self.input.padded)
+            pad = layout.pad
+            self.delivered = self.delivered_pad[pad:pad + layout.rows, pad:pad + layout.cols]
         self.cand_noise = np.zeros(cfg.max_candidates, np.float32)
         self.cand_level = np.zeros(cfg.max_candidates, np.float32)
         self.edge_px = np.zeros(_PSF_STARS, np.float64)
@@ -622,6 +626,11 @@ class DefaultDetector:
         """Filter, threshold, peaks and centroids with the PSF configured; star count."""
         timer, grid = self.timer, self.grid
         timer.start("filter")
+        if self.speckle_fit is not None:
+            # under multiplicative noise a faint star's own pixels are spikes over a
+            # dark sky, which the impulse stage clears (a 3x3 median of a speckled star
+            # holding a few lit pixels is the sky): the filter sums the frame as delivered
+            np.copyto(self.work_float, self.delivered)
         self.filter_slabs.run(self._matched_filter, self.work_float, self.filt)
         grid.stats(self.filt_pad, self.residual, self.noise_f,
                    QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=True,
@@ -1009,12 +1018,14 @@ class DefaultDetector:
         reference, so an unknown or field-varying PSF needs no configuration.
         Saturated spots (flat tops) and rejected sharp ones are neither
         judged nor part of the median; fewer than five such sources give no
-        reference.
+        reference. Under multiplicative noise a spot's peak is one speckle, and a
+        faint star's is cleared with the impulses: its flux/peak says nothing of
+        its width, and nothing is judged.
         """
         n = len(sharp)
         unsat = (v["raw_peak"] < self.saturation) & ~sharp
         none = np.zeros(n, bool)
-        if np.count_nonzero(unsat) < 5:
+        if np.count_nonzero(unsat) < 5 or self.speckle_fit is not None:
             return none, none
         area = v["flux"] / np.maximum(v["peak"], 1e-12)
         reference = median(area[unsat])

@@ -36,6 +36,12 @@ Method, per star, vectorised over the stars of a frame:
    centre, the flux and log s, each step halved until the likelihood
    does not fall.
 
+Each pixel's probability carries a floor (``_STRAY``, 1e-6): a value the
+star's model cannot explain, such as a pixel of 1-3 ADU that a
+neighbour's wing lights in a corner of the window where the model puts
+0.04 ADU (probability near 1e-30), costs a fixed amount rather than
+outweighing every pixel of the star and dragging the centre off it.
+
 ``s`` is fitted per star: it is nearly uncorrelated with the centre (by
 symmetry), and a wrong s only changes how rounding and speckle share the
 wings. Used only with ``detect.centroid_noise: multiplicative``; it works
@@ -57,6 +63,16 @@ _HALVINGS = 6
 _CONVERGED = 1e-3       # px: a star whose centre moved less, and whose flux and log s
 _CONVERGED_SHAPE = 1e-2  # changed less than this (relative, log), has converged
 _LOG_S_MIN, _LOG_S_MAX = np.log(1e-3), np.log(100.0)   # relative noise s kept in range
+# a pixel's value comes, with this probability, from light that is not the star's (a
+# neighbour's wing, an impulse): its log P is never below log(_STRAY)
+_STRAY = 1e-6
+_LOG_STRAY = np.log(_STRAY)
+
+
+def _with_stray(log_p: np.ndarray) -> np.ndarray:
+    """log(P + _STRAY): a value the star's model cannot explain costs a fixed amount."""
+    with np.errstate(invalid="ignore"):       # a window that cannot be fitted stays NaN
+        return np.logaddexp(log_p, _LOG_STRAY)
 
 
 def _interval_log_p(lo, hi, mu, s):
@@ -193,10 +209,13 @@ class MultiplicativeFit:
         mu = np.clip(mu, _MIN_MU, self.full)
         s = np.exp(np.clip(p[:, 3], _LOG_S_MIN, _LOG_S_MAX))[:, None]
         if not with_scores:
-            return _interval_log_p(lo, hi, mu, s)[2].sum(axis=1), None
+            return _with_stray(_interval_log_p(lo, hi, mu, s)[2]).sum(axis=1), None
         log_p, by_mu, by_log_s = interval_scores(lo, hi, mu, s)
-        ll = log_p.sum(axis=1)
-        by_mu = np.where(live, by_mu, 0.0)
+        mixed = _with_stray(log_p)
+        ll = mixed.sum(axis=1)
+        own = np.exp(log_p - mixed)            # the share of the star's model in P
+        by_mu = np.where(live, by_mu * own, 0.0)
+        by_log_s = by_log_s * own
         flux = p[:, 2, None]
         gx = (fy[:, :, None] * dfx[:, None, :]).reshape(n, -1)
         gy = (dfy[:, :, None] * fx[:, None, :]).reshape(n, -1)
