@@ -11,7 +11,7 @@ import pytest
 from tracker.config import DetectConfig, SimConfig
 from tracker.detect import make_detector
 from tracker.detect.result import StarFlag
-from tracker.detect.surroundings import across_a_line
+from tracker.detect.surroundings import Surroundings, across_a_line
 from tracker.sim import render_points
 from tracker.sim.psf_shapes import PsfShape
 from tracker.sim.scene import Scene, particle_tracks, sun_glare
@@ -360,3 +360,23 @@ def test_a_line_has_light_in_two_opposite_sectors_and_sky_at_right_angles_to_the
     light[5] = True
     sky[[0, 1, 2, 3, 4, 5]] &= ~light[[0, 1, 2, 3, 4, 5]]
     assert across_a_line(light, sky).tolist() == [True, False, False, True, True, False]
+
+
+def test_the_sky_rings_of_a_full_chunk_of_wide_saturated_stars_are_read_at_every_radius():
+    """On the pixel grid a ring 2 px wide does not hold more pixels at every larger radius
+    (18-20 px: 248, 19-21 px: 244): the rings' scratch space is sized for the largest, so
+    a full chunk of candidates whose falling_sectors reach the 20 px ring is read (the
+    scratch was sized for the outermost ring, and a lunar frame with a PSF near 3 px
+    raised a ValueError). A broad star falls away on every side."""
+    stride, max_outer, chunk = 128, 21, 128
+    surroundings = Surroundings(stride, max_outer, capacity=200, chunk=chunk)
+    surroundings.configure(16)                       # rings out at 18 and 20 px
+    yy, xx = np.mgrid[:96, :stride]
+    image = 100.0 + 4000.0 * np.exp(-0.5 * ((xx - 64.0) ** 2 + (yy - 48.0) ** 2) / 6.0 ** 2)
+    image_pad = np.rint(image).astype(np.uint16)
+    bg_pad = np.full(image.shape, 100.0, np.float32)
+    centre = np.full(200, 48 * stride + 64, np.intp)
+    falls = surroundings.falling_sectors(image_pad, bg_pad, centre, np.full(200, 5.0),
+                                         np.full(200, 4000.0), np.full(200, 1e6))
+    assert falls.shape == (200, 8)
+    assert falls.all()

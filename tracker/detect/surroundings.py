@@ -121,8 +121,12 @@ class Surroundings:
         self.max_outer = int(max_outer)
         self.width = int(width)
         self.capacity = int(chunk)
-        size = self.capacity * len(_Ring(self.stride, self.max_outer - self.width,
-                                         self.max_outer).offsets)
+        # every ring a width wide out to max_outer, made once: configure only picks
+        self._all_rings = [_Ring(self.stride, r - self.width, r)
+                           for r in range(self.width + 1, self.max_outer + 1)]
+        # the largest ring's pixels: on the pixel grid a ring's count does not grow
+        # with its radius at every step (21 px: 244, 20 px: 248)
+        size = self.capacity * max(len(ring.offsets) for ring in self._all_rings)
         self._index = np.zeros(size, np.intp)
         self._values = np.zeros(size, np.float32)
         self._reads = np.zeros(size, np.uint16)
@@ -131,9 +135,6 @@ class Surroundings:
         self.sky_sectors = np.zeros(int(capacity), np.int32)
         self.sky = np.zeros((int(capacity), _SECTORS), np.bool_)   # which sectors are sky
         self.light = np.zeros((int(capacity), _SECTORS), np.bool_)  # hold _LINE_LIGHT x peak
-        # every ring a width wide out to max_outer, made once: configure only picks
-        self._all_rings = [_Ring(self.stride, r - self.width, r)
-                           for r in range(self.width + 1, self.max_outer + 1)]
         self.configure(1)
 
     def configure(self, inner: int) -> None:
