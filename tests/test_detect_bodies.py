@@ -409,3 +409,27 @@ def test_the_sky_rings_of_a_full_chunk_of_wide_saturated_stars_are_read_at_every
                                          np.full(200, 4000.0), np.full(200, 1e6))
     assert falls.shape == (200, 8)
     assert falls.all()
+
+
+def test_a_saturated_body_reaching_into_a_clipped_candidates_ring_leaves_no_sector_falling():
+    """A clipped core 4 px wide with a saturated band 11 px wide running from it to the
+    frame's edge (the horn of a saturated crescent, a disc's limb): in the first ring
+    whose mean is under half the full scale, the band's sectors are still at full scale,
+    which a round star's ring never is, so no sector falls (before: the six sky sectors
+    fell and the piece of the Earth was the frame's brightest "star", lunar 8 mm). A
+    saturated star of the same core with Gaussian wings falls on every side."""
+    stride, full, bg = 128, 877.0, 100.0
+    surroundings = Surroundings(stride, 21, capacity=2, chunk=2)
+    surroundings.configure(4)
+    yy, xx = np.mgrid[:96, :stride]
+    r = np.hypot(xx - 64.0, yy - 48.0)
+    star = bg + np.minimum(full, 4.0 * full * np.exp(-0.5 * (r / 2.5) ** 2))
+    horn = np.where((r <= 4.0) | ((np.abs(yy - 48.0) <= 5.0) & (xx >= 64)), bg + full, bg)
+    centre = np.array([48 * stride + 64], np.intp)
+    bg_pad = np.full(yy.shape, bg, np.float32)
+    ceiling = np.array([0.5 * full])
+    falls = [surroundings.falling_sectors(np.rint(image).astype(np.uint16), bg_pad, centre,
+                                          np.array([5.0]), np.array([full]), ceiling)[0]
+             for image in (horn, star)]
+    assert not falls[0].any()
+    assert falls[1].all()

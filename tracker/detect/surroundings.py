@@ -51,6 +51,7 @@ _PEAK_FRACTION = 0.05
 _SPREAD = 1.5
 _PEAK_SPREAD = 0.01
 _FALL = 0.5
+_BODY_LIGHT = 1.6   # x falling_sectors' ceiling: a sector this bright is a body's light
 _LINE_LIGHT = 0.3
 
 
@@ -206,7 +207,10 @@ class Surroundings:
         A saturated star's wings may stand far above a twentieth of its
         clipped peak on every side, but beyond its clipped core they fall
         away from it on every side; a body's edge, a slope of glare or
-        textured ground does not. Returns a new (n, 8) bool array (there are
+        textured ground does not. In that ring a sector brighter than
+        ``_BODY_LIGHT`` x ``ceiling`` is a body's light reaching in (a star's
+        ring is round: its sectors fall together), and none of that
+        candidate's sectors falls. Returns a new (n, 8) bool array (there are
         few such stars).
         """
         n = len(centre)
@@ -223,6 +227,11 @@ class Surroundings:
                     far, _ = self._sector_stats(outer, a, b, image_pad, bg_pad, centre)
                     falls = sky | ((mean > 0.0) & (mean < ceiling[a:b, None])
                                    & (far < _FALL * mean))
+                    # a star is round: where its ring's mean fell under the ceiling no
+                    # sector of it is still near full scale; a body's is (the horn of
+                    # a saturated crescent, the limb of a disc), and nothing falls
+                    falls &= ~np.any(mean >= _BODY_LIGHT * ceiling[a:b, None], axis=1,
+                                     keepdims=True)
                     out[a:b][ready] = falls[ready]
                     undecided &= ~ready
                 if not undecided.any():
