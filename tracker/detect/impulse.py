@@ -122,6 +122,7 @@ _RING = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], np.uint8)   # a pixel's eigh
 _REFINE_PASSES = 2
 _GROW_STEPS = 2        # rounds of adding the neighbours of replaced pixels
 _GROW_LIMIT = 0.5      # ... tested against this fraction of the first pass's limit
+_TRACK_REMNANT = 0.2   # a track pixel whose replacement keeps under this of its height: sky
 
 
 class ImpulseFilter:
@@ -158,6 +159,7 @@ class ImpulseFilter:
                                         for dx in (-1, 0, 1)], np.intp)
         self.window_values = np.zeros((self.capacity, 9), dtype)
         self.replaced = np.zeros(self.capacity, np.bool_)
+        self.height = np.zeros(self.capacity, np.float32)   # first read above the background
         self.stale = np.zeros(self.capacity, np.bool_)     # to be judged again (_retest)
         self.sub_index = np.zeros(self.capacity, np.intp)   # _retest_some's candidates
         self.sub_values = np.zeros((4, self.capacity), np.float32)
@@ -173,6 +175,7 @@ class ImpulseFilter:
         self.area_values = np.zeros((3, 9 * self.capacity), np.float32)
         self.area_reads = np.zeros(9 * self.capacity, dtype)
         self.area_high = np.zeros(9 * self.capacity, np.bool_)
+        self.area_marks = np.zeros(9 * self.capacity, np.uint8)
         self.numbers = np.arange(1, 9 * self.capacity + 1, dtype=np.int32)
         self.stamp = np.zeros(layout.full_shape[0] * stride, np.int32)
         self.stamp_reads = np.zeros(9 * self.capacity, np.int32)
@@ -377,22 +380,31 @@ class ImpulseFilter:
         track two or three pixels wide the 3x3 medians that replaced it are
         themselves lifted by the track, and what is left (a faint ridge) is a
         star to the matched filter; the background has no such memory.
-        Pixels more than half the limit above the background become the
+        Pixels more than half the limit above the background, and replaced
+        pixels above it (medians of windows the track lifted), become the
         background (rounded); the rest are noise and stay. Only track pixels
         on open sky are cleared (their replacement is within the limit of the
-        background): on a star's core, where the spikes of speckle or a track
-        across the star sit, the neighbourhood is the star's light.
+        background, or under ``_TRACK_REMNANT`` of the pixel's first height:
+        the median of a bright track's core and wings): on a star's core,
+        where the spikes of speckle or a track across the star sit, the
+        neighbourhood is the star's light.
         """
         idx = self.index[:n]
         track = self._track_pixels(n)
         # ... on open sky: its replacement (its neighbourhood's median) is within the
-        # limit of the background; on a star's core (speckle, a track across a star)
-        # the neighbourhood is the star, and it stays
+        # limit of the background, or under _TRACK_REMNANT of the height the pixel
+        # first had (the median of a track's core and its diffused wings); on a
+        # star's core (speckle, a track across a star) the neighbourhood is the star,
+        # and it stays
         w, m, b, lim = (v[:n] for v in self.values)
         np.take(work_pad.ravel(), idx, out=self.reads[:n], mode="clip")
         np.copyto(w, self.reads[:n])
         np.subtract(w, b, out=w)
         np.less(w, lim, out=self.tmp_flags[:n])
+        remnant = self.sparse.t2[:n]
+        np.multiply(self.height[:n], _TRACK_REMNANT, out=remnant)
+        np.less(w, remnant, out=self.sparse.b1[:n])
+        np.logical_or(self.tmp_flags[:n], self.sparse.b1[:n], out=self.tmp_flags[:n])
         np.logical_and(track, self.tmp_flags[:n], out=track)
         k = int(np.count_nonzero(track))
         if k == 0:
@@ -410,6 +422,15 @@ class ImpulseFilter:
         np.multiply(limit, _GROW_LIMIT, out=limit)
         high = self.area_high[: 9 * k]
         np.greater(values, limit, out=high)
+        # ... and the replaced pixels above it: a replacement is the median of a window
+        # the track's wings lifted, and a patch of them a few ADU high is a faint star
+        # to the matched filter (what noise is left there is the sky's, not raised)
+        marks = self.marks
+        np.put(marks, idx, self.replaced[:n].view(np.uint8), mode="clip")
+        lifted = self.area_marks[: 9 * k]
+        np.take(marks, area, out=lifted, mode="clip")
+        np.put(marks, idx, 0, mode="clip")
+        high |= (lifted > 0) & (values > 0.0)
         np.maximum(background, 0.0, out=background)
         np.rint(background, out=background)
         np.copyto(values, background)
@@ -560,6 +581,8 @@ class ImpulseFilter:
         np.take(limit_pad.ravel(), new_pixels, out=self.reads[:k], mode="clip")
         np.multiply(self.reads[:k], _GROW_LIMIT, out=self.values[3][new], casting="unsafe")
         np.take(bg_pad.ravel(), new_pixels, out=self.values[2][new], mode="clip")
+        np.take(work_pad.ravel(), new_pixels, out=self.reads[:k], mode="clip")
+        np.subtract(self.reads[:k], self.values[2][new], out=self.height[new])
         self.replaced[new] = False
         self.charge[new] = False
         return n + k
@@ -580,6 +603,7 @@ class ImpulseFilter:
             np.copyto(dst, reads)
         np.take(bg_pad.ravel(), idx, out=b, mode="clip")
         imp = _impulse_test(w, m, b, lim, self.contrast, self.sparse, n)
+        np.subtract(w, b, out=self.height[:n])
         np.greater(w, m, out=self.charge[:n])
         np.logical_and(self.charge[:n], imp, out=self.charge[:n])
         np.copyto(w, m, where=imp)

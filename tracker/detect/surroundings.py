@@ -51,6 +51,7 @@ _PEAK_FRACTION = 0.05
 _SPREAD = 1.5
 _PEAK_SPREAD = 0.01
 _FALL = 0.5
+_BODY_LIGHT = 1.6   # x falling_sectors' ceiling: a sector this bright is a body's light
 _LINE_LIGHT = 0.3
 
 
@@ -121,8 +122,12 @@ class Surroundings:
         self.max_outer = int(max_outer)
         self.width = int(width)
         self.capacity = int(chunk)
-        size = self.capacity * len(_Ring(self.stride, self.max_outer - self.width,
-                                         self.max_outer).offsets)
+        # every ring a width wide out to max_outer, made once: configure only picks
+        self._all_rings = [_Ring(self.stride, r - self.width, r)
+                           for r in range(self.width + 1, self.max_outer + 1)]
+        # the largest ring's pixels: on the pixel grid a ring's count does not grow
+        # with its radius at every step (21 px: 244, 20 px: 248)
+        size = self.capacity * max(len(ring.offsets) for ring in self._all_rings)
         self._index = np.zeros(size, np.intp)
         self._values = np.zeros(size, np.float32)
         self._reads = np.zeros(size, np.uint16)
@@ -131,9 +136,6 @@ class Surroundings:
         self.sky_sectors = np.zeros(int(capacity), np.int32)
         self.sky = np.zeros((int(capacity), _SECTORS), np.bool_)   # which sectors are sky
         self.light = np.zeros((int(capacity), _SECTORS), np.bool_)  # hold _LINE_LIGHT x peak
-        # every ring a width wide out to max_outer, made once: configure only picks
-        self._all_rings = [_Ring(self.stride, r - self.width, r)
-                           for r in range(self.width + 1, self.max_outer + 1)]
         self.configure(1)
 
     def configure(self, inner: int) -> None:
@@ -205,7 +207,10 @@ class Surroundings:
         A saturated star's wings may stand far above a twentieth of its
         clipped peak on every side, but beyond its clipped core they fall
         away from it on every side; a body's edge, a slope of glare or
-        textured ground does not. Returns a new (n, 8) bool array (there are
+        textured ground does not. In that ring a sector brighter than
+        ``_BODY_LIGHT`` x ``ceiling`` is a body's light reaching in (a star's
+        ring is round: its sectors fall together), and none of that
+        candidate's sectors falls. Returns a new (n, 8) bool array (there are
         few such stars).
         """
         n = len(centre)
@@ -222,6 +227,11 @@ class Surroundings:
                     far, _ = self._sector_stats(outer, a, b, image_pad, bg_pad, centre)
                     falls = sky | ((mean > 0.0) & (mean < ceiling[a:b, None])
                                    & (far < _FALL * mean))
+                    # a star is round: where its ring's mean fell under the ceiling no
+                    # sector of it is still near full scale; a body's is (the horn of
+                    # a saturated crescent, the limb of a disc), and nothing falls
+                    falls &= ~np.any(mean >= _BODY_LIGHT * ceiling[a:b, None], axis=1,
+                                     keepdims=True)
                     out[a:b][ready] = falls[ready]
                     undecided &= ~ready
                 if not undecided.any():
