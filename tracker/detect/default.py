@@ -69,7 +69,11 @@ handled, sigma 3.5 px):
    impulse stage clears); the shape tests (sharp spots, ELONGATED, EXTENDED
    and bodies by flux/peak) are off, a speckled star's pixels being spiky,
    and candidates that end within 2 PSF sigma of a brighter one are
-   dropped as its duplicates.
+   dropped as its duplicates. A star the frame's edge cuts
+   (tracker.detect.edge) starts its window where the star is (the
+   reflected filter may put its peak on the border pixel), is fitted on the
+   pixels inside the frame at any SNR, is judged by its shape along the
+   edge, and is dropped when its centre lies beyond the frame.
 
 The Gaussian of step 5 and the threshold tests of steps 4 and 6 run in
 ``detect.threads`` horizontal slabs at once (tracker.detect.slabs; the
@@ -83,8 +87,9 @@ statistics' samples, while step 4 measures the PSF (the impulses' second
 pass then rewrites the pixels it changes in both copies).
 
 ``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
-found in steps 3-4 plus sharp spots from step 7), sharp_spots, candidates,
-left_out (stars beyond ``detect.max_stars``). ``Detections.psf_*``: the PSF
+found in steps 3-4 plus sharp spots from step 7), sharp_spots, masked,
+beyond_edge (centres beyond the frame), candidates, left_out (stars beyond
+``detect.max_stars``). ``Detections.psf_*``: the PSF
 used. Stars are ordered most significant first (by SNR); beyond
 ``detect.max_stars`` the least significant are left out.
 """
@@ -99,6 +104,7 @@ import numpy as np
 
 from tracker.config import DetectConfig
 from tracker.detect.background import QUANTISATION_NOISE_ADU, BackgroundGrid
+from tracker.detect.edge import beyond_frame, cut_axes, inward_starts, judge_whole
 from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.frame_input import FrameInput, Reason
 from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
@@ -350,7 +356,8 @@ class DefaultDetector:
         self.surroundings = Surroundings(layout.stride, sky_radius, cfg.max_candidates, _CHUNK,
                                          _SKY_RING_WIDTH)
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
-                         "sharp_spots": 0, "masked": 0, "candidates": 0, "left_out": 0}
+                         "sharp_spots": 0, "masked": 0, "beyond_edge": 0, "candidates": 0,
+                         "left_out": 0}
         self._sigma_step = None
         self.steps = SigmaSteps(_sigma_step_of(SIGMA_MIN_PX), _sigma_step_of(SIGMA_MAX_PX),
                                 4 + len(fields(StarRoughness)),
@@ -867,8 +874,13 @@ class DefaultDetector:
         noise, level = self.cand_noise[:n], self.cand_level[:n]
         self.grid.at(self.noise, cand, noise)
         self.grid.at(self.residual, cand, level)
+        rows, cols = self.layout.frame_position(cand)
+        inward_starts(cand, rows, cols, self.input.shape, self.input.padded, self.bg_pad,
+                      self.layout.stride, self.sigma)
         v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level,
                                     self.saturation, self.peaks.blended[:n])
+        across_x, across_y = cut_axes(rows, cols, self.input.shape, self.radius)
+        judge_whole(v, across_x, across_y)
         if self.speckle_fit is None:
             self._centre_plateaus(n, cand, v)
         if self.speckle_fit is not None:  # its likelihood handles saturated stars too
@@ -949,14 +961,17 @@ class DefaultDetector:
         on_body = broad & (self.surroundings.sky_sectors[:n] < _BROAD_SKY_SECTORS)
         masked = (body | embedded | on_body) & ~sharp
         self.counters["masked"] = int(np.count_nonzero(masked))
-        keep = np.flatnonzero(~(sharp | merged | masked))
+        # a star centred beyond the frame shows less than half its light: no centre
+        off = beyond_frame(cols + v["x0"], rows + v["y0"], self.input.shape)
+        self.counters["beyond_edge"] = int(np.count_nonzero(off))
+        keep = np.flatnonzero(~(sharp | merged | masked | off))
         # most significant first: a bright bump in a noisy patch (glare, foliage) ranks
         # below a star of the same height on dark sky
         keep = keep[np.argsort(-v["snr"][keep], kind="stable")]
         self.counters["left_out"] = max(0, len(keep) - self.table.capacity)
         keep = keep[: self.table.capacity]
         count = len(keep)
-        rows, cols = self.layout.frame_position(cand[keep])
+        rows, cols = rows[keep], cols[keep]
         s = self.table.stars
         s["x"][:count] = cols + v["x0"][keep]
         s["y"][:count] = rows + v["y0"][keep]

@@ -351,6 +351,7 @@ class ImpulseFilter:
         t1, lone = self.sparse.t1[:n], self.lone[:n]
         np.subtract(w, b, out=t1)
         np.multiply(t1, ring, out=t1)
+        self._frame_ring(idx, b, around, t1)
         np.less(around, t1, out=lone)                   # its neighbours dark for a star
         np.logical_and(lone, w - m > lim, out=lone)
         np.logical_or(imp, lone, out=imp)
@@ -363,6 +364,30 @@ class ImpulseFilter:
         self.replaced[:n] |= imp
         self.charge[:n] |= imp
         return hit, np.compress(imp, w) - median_of
+
+    def _frame_ring(self, idx: np.ndarray, b: np.ndarray, around: np.ndarray,
+                    needed: np.ndarray) -> None:
+        """The lone test on the frame's outer rows and columns: of a candidate there
+        (padded flat indices ``idx``) only the neighbours inside the frame are read.
+
+        ``around`` holds the eight neighbours' light less 8 times the background
+        ``b`` and ``needed`` the light a star would put in all eight; the pixels
+        beyond the frame read zero and hold no background, and a star's light there
+        is not seen: both are set, in place, for the neighbours the frame holds (a
+        star centred beyond the edge put half of its light in the border pixel and
+        the rest beyond, and read as a lone hot pixel whose eighth neighbours were
+        dark).
+        """
+        rows, cols = self.layout.frame_position(idx)
+        across = ((rows == 0) | (rows == self.layout.rows - 1)).astype(np.int8) + (
+            (cols == 0) | (cols == self.layout.cols - 1))
+        at = np.flatnonzero(across)
+        if len(at) == 0:
+            return
+        # one edge: 3 of 8 neighbours beyond it; a corner: 5
+        beyond = np.where(across[at] == 1, 3.0, 5.0)
+        around[at] += beyond * b[at]
+        needed[at] *= (8.0 - beyond) / 8.0
 
     @staticmethod
     def _mirror(idx: np.ndarray, reads: np.ndarray, work_pad: np.ndarray,
@@ -525,6 +550,7 @@ class ImpulseFilter:
             t1, t2 = self.sparse.t1[:k], self.sparse.t2[:k]
             np.subtract(w, b, out=t1)                        # height
             np.multiply(t1, ring, out=t1)
+            self._frame_ring(idx, b, around, t1)
             np.less(around, t1, out=lone)
             np.subtract(w, m, out=t2)
             np.greater(t2, lim, out=self.tmp_flags[:k])      # above its median by the limit

@@ -32,8 +32,8 @@ class StarFlag:
     """Bits of the ``flags`` field."""
 
     SATURATED = 1   # a pixel reached the sensor's full scale
-    EDGE = 2        # the centroid's window reaches beyond the frame: a star at SNR >= 10
-                    # is fitted on the pixels inside, a fainter one's centre is pulled inward
+    EDGE = 2        # the centroid's window reaches beyond the frame: the star is fitted
+                    # on the pixels inside it (tracker.detect.edge), its centre in the frame
     ELONGATED = 4   # second moments say streak or trail, not a point
     BLENDED = 8     # split from a segment shared with another star
     EXTENDED = 16   # much broader than the frame's point sources: nebula, comet,

@@ -46,7 +46,8 @@ __all__ = ["WindowedCentroider", "later_within", "second_moments"]
 
 # The fit (tracker.detect.fit) refines stars at least this significant: fainter ones are
 # background-limited, where the windowed centroid is the maximum-likelihood centre and
-# its pixel-phase bias (< 0.03 px at sigma 0.6) is far inside their noise.
+# its pixel-phase bias (< 0.03 px at sigma 0.6) is far inside their noise; but not
+# when the frame's edge cuts the window (then every such star is fitted).
 _FIT_MIN_SNR = 10.0
 
 
@@ -170,6 +171,10 @@ class WindowedCentroider:
         if self.fit is not None:
             fit = v["snr"] >= _FIT_MIN_SNR
             inside = self._inside(cand)
+            if inside is not None:
+                # a cut star's windowed centre is pulled inward at any SNR (the window
+                # reads no light beyond the edge): the fit's, on the pixels inside, is not
+                fit |= ~inside.all(axis=1)
             if blended is not None:
                 fit &= ~blended
             rows = np.flatnonzero(fit)
