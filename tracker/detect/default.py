@@ -238,7 +238,7 @@ def _reflected_noise_gain(kernel: np.ndarray, rows: int,
         g = np.ones(half, np.float32)
         if length > 2 * half:
             for i in range(half):
-                folded = np.zeros(length)
+                folded = np.zeros(2 * half)   # the taps land at rows 0 .. 2 half - 1
                 for t, k in zip(range(-half, half + 1), kernel, strict=True):
                     j = i + t
                     folded[-j - 1 if j < 0 else j] += k
