@@ -173,9 +173,10 @@ def test_stars_among_brighter_particle_hits_measure_the_psf_and_are_found():
     assert np.all(d.min(axis=1) < 1.0)
 
 
-def test_a_frame_of_faint_stars_of_a_wide_psf_is_searched_again_with_it():
-    """Too few stars above 10 sigma for the bright-star pass: the candidates found with the
-    default 1.2 px measure sigma 2.8, and the frame is searched again with it."""
+def test_a_frame_of_faint_stars_of_a_wide_psf_is_searched_with_it():
+    """Too few stars above 10 sigma for the bright-star pass: the frame's brightest 4 x 4
+    bins measure sigma 2.8, and the frame is searched (once) with it, not the default
+    1.2 px."""
     rng = np.random.default_rng(9)
     shape = (500, 500)
     xs, ys = rng.uniform(30, 470, 40), rng.uniform(30, 470, 40)
@@ -191,12 +192,16 @@ def test_a_frame_of_faint_stars_of_a_wide_psf_is_searched_again_with_it():
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_faint_stars_of_a_wide_psf_measure_it_and_their_hot_pixels_are_not_stars(seed):
     """40 stars of sigma 2.2 px at matched-filter SNR 15 (peak SNR 3: none for the
-    bright-star pass) among 700 hot pixels of a few hundred e-: the stars the first search
-    kept measure the PSF (within 5 %, from 5 or more of them), and the hot pixels judged
-    against it are no stars. Judged against the sharpest PSF handled, a hot pixel whose
-    3x3 median noise lifted stands above it by less than a star's sharpest contrast; with
-    the bright pixels as the PSF's candidates the frame measured no PSF (or 1.9-2.05 px
-    from five or six spots) and kept 1-3 hot pixels as stars."""
+    bright-star pass) among 700 hot pixels of a few hundred e-: the frame's brightest
+    4 x 4 bins measure the PSF before the search (within 5 %, from 5 or more stars), and
+    the hot pixels judged against it are no stars. Judged against the sharpest PSF
+    handled, a hot pixel whose 3x3 median noise lifted stands above it by less than a
+    star's sharpest contrast; with the bright pixels as the PSF's candidates the frame
+    measured no PSF (or 1.9-2.05 px from five or six spots) and kept 1-3 hot pixels as
+    stars. A star with such a pixel on its core (above its median by half the star's
+    peak, within a pixel of its centre) goes with it: 1-4 of the 40 (the detector that
+    searched such a frame a second time kept them on a first frame, and lost the same
+    ones from its third on, with the PSF known)."""
     sim = dataclasses.replace(SimConfig(), cosmic_ray_rate_cm2_s=0.0, hot_pixel_fraction=2e-3,
                               hot_pixel_dark_e_s=1500.0)
     rng = np.random.default_rng(seed)
@@ -214,7 +219,7 @@ def test_faint_stars_of_a_wide_psf_measure_it_and_their_hot_pixels_are_not_stars
                       hot[:, 1:] - result.stars["y"][None, :]).min(axis=0) < 1.0
     assert not on_hot.any()
     d = np.hypot(xs[:, None] - result.stars["x"][None, :], ys[:, None] - result.stars["y"][None, :])
-    assert np.mean(d.min(axis=1) < 1.5) >= 0.95
+    assert np.mean(d.min(axis=1) < 1.5) >= 0.9
 
 
 def test_too_few_stars_to_measure_the_psf_still_bound_it_for_their_hot_pixels():

@@ -114,13 +114,15 @@ def test_faint_spots_far_narrower_than_a_star_are_rejected(monkeypatch):
     noisy 3x3 median and neighbours made them look like light), searched with the
     configured 1.2 px (detect.psf_measure false), are rejected when far narrower than a
     star by more than 4 of that (14 false detections in three frames against 22), and
-    not one star more is lost. With the PSF measured on the frames' faint stars
-    (2.4 px) the matched filter leaves none of them above the threshold, and finds 576
-    stars, not 504."""
+    not one star more is lost. With the PSF measured on the frames' binned spots
+    (2.3 px, before the one search) the matched filter leaves none of them above the
+    threshold, and finds 533 stars, not 504 (576 when the first two frames were searched
+    again after their lone hot pixels were cleared: a star with one on its core, above
+    its median by half the star's peak, is dropped with it)."""
     found, false = _hot_pixel_frames(2, measure=False)
     found_measured, false_measured = _hot_pixel_frames(2)
     monkeypatch.setattr(default, "_WIDTH_SPREADS", np.inf)
     found_without, false_without = _hot_pixel_frames(2, measure=False)
     assert found == found_without
     assert false <= false_without - 5, (false, false_without)
-    assert false_measured == 0 and found_measured >= found + 50
+    assert false_measured == 0 and found_measured >= found + 25

@@ -27,14 +27,19 @@ handled, sigma 3.5 px):
    impulse candidates are then tested again against this PSF (a sharper
    cut now that the stars' own sharpness is known), each replaced pixel
    taking the median of its cleaned neighbourhood. A frame with too few
-   bright stars for it (a wide PSF's peaks are low) is searched first (steps
-   5-7), and the stars kept at SNR >= 10 measure the PSF; the lone impulse
-   candidates (no track beside them) are then judged against it, the stars
-   that were mostly such a pixel dropped, and the frame searched again if
-   the PSF is far from the one it was searched with. With no measurement
-   the frame keeps the PSF it was searched with, and ``psf_stars`` says 0;
-   three agreeing stars, too few to measure it, still bound it from below
-   for the lone impulses.
+   bright stars for it (a wide PSF's peaks are low) measures it on the
+   brightest spots of the frame binned 4 x 4 (tracker.detect.binned: a wide
+   star's light summed against a quarter of the noise), on the sky only,
+   through the same tests and meter; particles' tracks and sharp hits
+   measured among them do not vote in a second try. The frame is then
+   searched once (steps 5-7) with that PSF, the impulses' second pass
+   judged against the sharpest PSF handled, and the lone impulse candidates
+   (no track beside them) judged against the measured one after the search,
+   the stars that were mostly such a pixel dropped (cleared before, a
+   particle's hit would leave its wings as a spot). With no measurement the
+   frame keeps the estimate of earlier frames (or the configured start),
+   and ``psf_stars`` says 0; three agreeing stars, too few to measure it,
+   still bound it from below for the lone impulses.
 5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
    float32 copy (OpenCV's Gaussian is fastest on float32). The background is
    not subtracted from the whole image: the threshold image carries it
@@ -104,6 +109,7 @@ import numpy as np
 
 from tracker.config import DetectConfig
 from tracker.detect.background import QUANTISATION_NOISE_ADU, BackgroundGrid
+from tracker.detect.binned import BinnedPeaks
 from tracker.detect.edge import beyond_frame, cut_axes, inward_starts, judge_whole
 from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.frame_input import FrameInput, Reason
@@ -117,6 +123,7 @@ from tracker.detect.psf import (
     SIGMA_MIN_PX,
     PsfMeter,
     PsfTracker,
+    pixel_tensor_to_optics,
 )
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.roughness import StarRoughness
@@ -166,9 +173,9 @@ _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, 
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
 _SHARPEST_RING = 0.5 * psf_ring(SIGMA_MIN_PX)
 _FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
-_SECOND_LOOK_SNR = 10.0        # the PSF measured on candidates this significant ...
-_SECOND_LOOK_CHANGE = math.log(1.25)  # ... searched again with if this far from the one used
-_LONE_STARS = 3                # ... or, this many, bound it for the lone impulses
+_BINNED_SNR = 4.0              # too few bright peaks: 4x4 bins this significant measure it,
+_LONE_STARS = 3                # ... or, this many, bound it for the impulses
+_BOUND_AGREE = math.log(1.15)  # ... by the sharpest within 15 % of their PSF
 _ELONGATION_SNR = 20.0         # spots this significant tell a trailed frame
 _SKY_RING_SIGMAS = 3.5         # a candidate's surroundings: from this many PSF sigmas ...
 _SKY_RING_WIDTH = 2            # ... outward by this many pixels
@@ -244,7 +251,7 @@ def _reflected_noise_gain(kernel: np.ndarray, rows: int,
         g = np.ones(half, np.float32)
         if length > 2 * half:
             for i in range(half):
-                folded = np.zeros(length)
+                folded = np.zeros(2 * half)   # the taps land at rows 0 .. 2 half - 1
                 for t, k in zip(range(-half, half + 1), kernel, strict=True):
                     j = i + t
                     folded[-j - 1 if j < 0 else j] += k
@@ -327,6 +334,7 @@ class DefaultDetector:
         self.psf_cand = np.zeros(_PSF_STARS, np.intp)
         self.psf_noise = np.zeros(_PSF_STARS, np.float32)
         self.psf_meter = PsfMeter(layout.stride, psf_radius, _PSF_STARS, cfg.psf_min_stars)
+        self.binned = BinnedPeaks(layout, _PSF_PEAKS)
         self.psf_tracker = PsfTracker(cfg.psf_sigma_px, cfg.psf_memory_frames)
         self.measure_psf = cfg.psf_measure   # a caller given the PSF may skip step 4's meter
         self.psf = self.psf_tracker.current
@@ -352,6 +360,7 @@ class DefaultDetector:
         self.beside_body = np.zeros(grid_shape, np.bool_)   # sky tiles beside a body's
         self.sky_model = (0.0, 0.0, 0.0)   # the frame's sky noise model (_mark_dark_side)
         self.near_texture = np.zeros(grid_shape, np.bool_)
+        self.off_sky = np.zeros(grid_shape, np.bool_)
         self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
         self.surroundings = Surroundings(layout.stride, sky_radius, cfg.max_candidates, _CHUNK,
                                          _SKY_RING_WIDTH)
@@ -468,84 +477,30 @@ class DefaultDetector:
         self._float_wait = self.filter_slabs.start(self._filter_inputs, self.input.work,
                                                    self.work_float)
         timer.start("psf")
-        self.psf = self.psf_tracker.update(self._measure_psf() if self.measure_psf
-                                           else None)
+        measured, bound, binned = None, None, False
+        if self.measure_psf:
+            measured = self._measure_psf()
+            if measured is None:
+                measured, bound = self._binned_psf()
+                binned = measured is not None
+        self.psf = self.psf_tracker.update(measured)
         self._configure(self.psf.sigma_px)
-        self._refine_impulses()
+        self._refine_impulses(self.psf.stars > 0 and not binned)
         count = self._search()
-        if self.measure_psf and self.psf.stars == 0:
-            count = self._second_look(count)
+        if binned or bound is not None:
+            count = self._retest_lone(count, self.psf_sigma_used if binned else bound)
         timer.stop()
         reason = (Reason.CROWDED if self.peaks.crowded
                   else Reason.TOO_MANY if self.counters["left_out"] else None)
         return self.table.result(count, reason, self.counters, timer.ms, self.psf)
 
-    def _second_look(self, count: int) -> int:
-        """Too few bright stars for step 4: the PSF measured on the stars the search kept
-        (:meth:`_psf_from_candidates`); with it the lone impulses are judged again and,
-        if it is far from the PSF searched with, the frame searched again. Returns the
-        star count.
-
-        Without a measurement the frame keeps the PSF it was searched with (the
-        configured start, or the estimate of earlier frames). Fewer agreeing stars
-        than ``psf_min_stars``, but at least ``_LONE_STARS``, do not measure it but
-        say the frame's stars are no sharper than the sharpest of them, and the lone
-        impulses are judged against that; with fewer still they stay judged against
-        the sharpest PSF handled.
-        """
-        self.timer.start("psf")
-        measured = self._psf_from_candidates(count)
-        if measured is None:
-            return count
-        if measured.stars < self.cfg.psf_min_stars:
-            return self._retest_lone(count, float(self.psf_meter.last_stars()[1].min()))
-        searched_px = self.psf_sigma_used
-        self.psf = self.psf_tracker.update(measured)
-        self._configure(self.psf.sigma_px)
-        count = self._retest_lone(count, self.psf_sigma_used)
-        if abs(math.log(self.psf_sigma_used / searched_px)) >= _SECOND_LOOK_CHANGE:
-            count = self._search()
-        return count
-
-    def _retest_lone(self, count: int, sigma_px: float) -> int:
-        """Judge the lone impulse candidates again against a PSF of ``sigma_px``
-        (tracker.detect.impulse.ImpulseFilter.retest_lone) and drop the stars that were
-        mostly such a pixel; returns the new star count."""
-        if self.cfg.impulse_contrast is not None:
-            return count
-        contrast, ring = _impulse_cut(sigma_px)
-        hit, excess = self.impulses.retest_lone(self.input.padded, contrast, ring,
-                                                mirror_pad=self.float_pad)
-        self.counters["impulse_pixels"] += len(hit)
-        self.counters["hot_pixels"] += len(hit)
-        return self._drop_impulses(count, hit, excess)
-
-    def _drop_impulses(self, count: int, hit: np.ndarray, excess: np.ndarray) -> int:
-        """Drop the stars of the table (its first ``count``) that were mostly a pixel
-        found an impulse since: one of ``hit`` (padded flat indices) in the 3x3 around
-        the star's centre, standing above its median (``excess``, ADU) by at least half
-        the star's peak. Returns the new count."""
-        if len(hit) == 0 or count == 0:
-            return count
-        s = self.table.stars
-        centre = self.layout.flat_index(np.rint(s["y"][:count]).astype(np.intp),
-                                        np.rint(s["x"][:count]).astype(np.intp))
-        near = centre[:, None] + self.impulses.window_offsets[None, :]
-        which = np.searchsorted(hit, near)        # hit is sorted (raster order)
-        which = np.minimum(which, len(hit) - 1)
-        on = (hit[which] == near) & (excess[which] >= 0.5 * s["peak"][:count, None])
-        keep = np.flatnonzero(~on.any(axis=1))
-        if len(keep) == count:
-            return count
-        s[:len(keep)] = s[keep]
-        return len(keep)
-
-    def _refine_impulses(self) -> None:
-        """The impulse stage's second pass, judged against the PSF in use if this frame's
-        stars measured it; else against the sharpest PSF the detector handles (a PSF
-        from elsewhere may be wider than the frame's stars, and a pass for it would take
-        a sharper star's pixels for impulses and clear them as a track)."""
-        measured = self.psf.stars > 0
+    def _refine_impulses(self, measured: bool) -> None:
+        """The impulse stage's second pass, judged against the PSF in use if the frame's
+        bright stars measured it (``measured``); else against the sharpest PSF the
+        detector handles (a PSF from elsewhere may be wider than the frame's stars, and
+        a pass for it would take a sharper star's pixels for impulses and clear them as
+        a track; one measured on the binned frame's fainter spots judges the lone
+        impulses after the search, :meth:`_retest_lone`)."""
         contrast = (self.cfg.impulse_contrast if self.cfg.impulse_contrast is not None
                     else self.impulse_contrast if measured else self.impulses.contrast)
         ring = self.impulse_ring if measured else _SHARPEST_RING
@@ -651,27 +606,99 @@ class DefaultDetector:
         timer.start("centroid")
         return self._measure(n)
 
-    def _psf_from_candidates(self, count: int):
-        """The PSF measured (tracker.detect.psf's meter) on the frame's ``count`` stars as
-        kept (brightest first): those at SNR >= _SECOND_LOOK_SNR, neither saturated,
-        blended, on the edge nor extended. The shape tests have set aside the
-        particles' sharp spots and tracks, which would otherwise measure a PSF as
-        sharp as their charge."""
-        s = self.table.stars[:count]
-        bad = StarFlag.SATURATED | StarFlag.BLENDED | StarFlag.EDGE | StarFlag.EXTENDED
-        use = np.flatnonzero((s["snr"] >= _SECOND_LOOK_SNR) & ((s["flags"] & bad) == 0))
-        m = min(len(use), _PSF_STARS)
-        if m == 0:
-            return None
-        use = use[:m]               # the table is most significant first
-        rows = np.rint(s["y"][use]).astype(np.intp)
-        cols = np.rint(s["x"][use]).astype(np.intp)
-        self.psf_cand[:m] = self.layout.flat_index(rows, cols)
-        self.grid.at(self.noise, self.psf_cand[:m], self.psf_noise[:m])
-        return self.psf_meter.measure(m, self.input.padded, self.bg_pad, self.psf_cand,
-                                      self.psf_noise, self.saturation, self.psf.sigma_px,
-                                      self._edge_distance(rows, cols),
-                                      min_stars=min(_LONE_STARS, self.cfg.psf_min_stars))
+    def _binned_psf(self):
+        """Too few bright peaks for step 4: the PSF measured on the brightest spots of the
+        frame binned 4 x 4 (tracker.detect.binned), which a wide PSF's stars reach where
+        their peaks do not, through the same tests and meter as the bright peaks.
+        Returns (the measurement or None, a lower bound on the PSF's sigma or None).
+
+        Fewer agreeing stars than ``psf_min_stars``, but at least ``_LONE_STARS``, do
+        not measure the PSF but say the frame's stars are no sharper than the sharpest
+        of them: that sigma is the bound, for the impulses' second pass.
+        """
+        n = self.binned.find(self.input.padded, self.input.work, self.level, self.noise,
+                             _BINNED_SNR)
+        if n == 0:
+            return None, None
+        # on the sky only: lit ground, a body's edge and the tiles beside them hold bright
+        # compact spots (boulders, crater rims) wider or sharper than the stars
+        self._mark_texture()
+        np.logical_or(self.near_texture, self.beside_body, out=self.off_sky)
+        off = self.cand_near[:n]
+        self.grid.at(self.off_sky.view(np.uint8), self.binned.start[:n], off)
+        sky = np.flatnonzero(off == 0)
+        min_stars = min(_LONE_STARS, self.cfg.psf_min_stars)
+        measured = self._meter_binned(sky, min_stars)
+        if measured is None or measured.stars < self.cfg.psf_min_stars:
+            # particles' tracks and sharp hits among the brightest spots (a particle
+            # event's outnumber the stars), measured as such, do not vote again: as the
+            # meter's scouts they had sized its windows too small for a wide PSF's stars
+            spots = self._measured_stars(sky)
+            if 0 < len(spots) < len(sky):
+                measured = self._meter_binned(spots, min_stars)
+        if measured is None:
+            return None, None
+        if measured.stars < self.cfg.psf_min_stars:
+            sigma = self.psf_meter.last_stars()[1]
+            near = sigma[np.abs(np.log(sigma / measured.sigma_px)) <= _BOUND_AGREE]
+            return None, float(near.min()) if len(near) else measured.sigma_px
+        return measured, None
+
+    def _retest_lone(self, count: int, sigma_px: float) -> int:
+        """Judge the lone impulse candidates again against a PSF of ``sigma_px``
+        (tracker.detect.impulse.ImpulseFilter.retest_lone) and drop the stars that were
+        mostly such a pixel; returns the new star count."""
+        if self.cfg.impulse_contrast is not None:
+            return count
+        contrast, ring = _impulse_cut(sigma_px)
+        hit, excess = self.impulses.retest_lone(self.input.padded, contrast, ring,
+                                                mirror_pad=self.float_pad)
+        self.counters["impulse_pixels"] += len(hit)
+        self.counters["hot_pixels"] += len(hit)
+        return self._drop_impulses(count, hit, excess)
+
+    def _drop_impulses(self, count: int, hit: np.ndarray, excess: np.ndarray) -> int:
+        """Drop the stars of the table (its first ``count``) that were mostly a pixel
+        found an impulse since: one of ``hit`` (padded flat indices) in the 3x3 around
+        the star's centre, standing above its median (``excess``, ADU) by at least half
+        the star's peak. Returns the new count."""
+        if len(hit) == 0 or count == 0:
+            return count
+        s = self.table.stars
+        centre = self.layout.flat_index(np.rint(s["y"][:count]).astype(np.intp),
+                                        np.rint(s["x"][:count]).astype(np.intp))
+        near = centre[:, None] + self.impulses.window_offsets[None, :]
+        which = np.searchsorted(hit, near)        # hit is sorted (raster order)
+        which = np.minimum(which, len(hit) - 1)
+        on = (hit[which] == near) & (excess[which] >= 0.5 * s["peak"][:count, None])
+        keep = np.flatnonzero(~on.any(axis=1))
+        if len(keep) == count:
+            return count
+        s[:len(keep)] = s[keep]
+        return len(keep)
+
+    def _meter_binned(self, which: np.ndarray, min_stars: int):
+        """The PSF meter (:meth:`_meter`) on the binned candidates ``which``."""
+        start = self.binned.start[which]
+        noise = self.pool_cand_noise[:len(which)]
+        self.grid.at(self.noise, start, noise)
+        return self._meter(start, self.binned.brightest[which], noise, min_stars)
+
+    def _measured_stars(self, which: np.ndarray) -> np.ndarray:
+        """Those of the binned candidates ``which`` that the last :meth:`_meter_binned`
+        call did not measure as a particle's (sharper than any PSF handled, ellipticity
+        0.5 or more, or no spot at all); unmeasured ones stay."""
+        meter = self.psf_meter
+        n = meter.last_n
+        if n == 0:
+            return which
+        p = meter.per_star
+        sigma, ellipticity, _ = pixel_tensor_to_optics(p["cxx"][:n], p["cyy"][:n],
+                                                       p["cxy"][:n])
+        particle = ~((sigma >= SIGMA_MIN_PX) & (ellipticity < _PSF_ROUND))
+        measured = set(meter.last_cand[:n][particle].tolist())
+        return np.array([i for i in which if self.binned.start[i] not in measured],
+                        np.intp)
 
     def _bright_peaks(self) -> tuple[np.ndarray, np.ndarray]:
         """The brightest local maxima (padded flat indices, pixel noise), brightest first.
@@ -705,6 +732,13 @@ class DefaultDetector:
     def _measure_psf(self):
         """This frame's PSF from its brightest stars (tracker.detect.psf), or None."""
         cand, noise = self._bright_peaks()
+        return self._meter(cand, cand, noise)
+
+    def _meter(self, cand: np.ndarray, peak: np.ndarray, noise: np.ndarray,
+               min_stars: int | None = None):
+        """The PSF meter on the candidates that pass for stars: ``cand`` (padded flat
+        indices, brightest first) where each is measured from, ``peak`` its brightest
+        pixel, ``noise`` the pixel noise there; ``min_stars`` as the meter's."""
         n = len(cand)
         if n == 0:
             return None
@@ -713,12 +747,12 @@ class DefaultDetector:
         # height: they do not take the stars' places. The median is the impulse
         # stage's, of the frame as it arrived.
         value = self.psf_values[:n]
-        np.take(self.input.padded.ravel(), cand, out=self.psf_reads[:n], mode="clip")
+        np.take(self.input.padded.ravel(), peak, out=self.psf_reads[:n], mode="clip")
         np.copyto(value, self.psf_reads[:n])
         unsaturated = value < self.saturation
-        np.take(self.impulses.median_pad.ravel(), cand, out=self.psf_reads[:n], mode="clip")
+        np.take(self.impulses.median_pad.ravel(), peak, out=self.psf_reads[:n], mode="clip")
         np.subtract(value, self.psf_reads[:n], out=self.psf_contrast[:n])
-        np.subtract(value, np.take(self.bg_pad.ravel(), cand, mode="clip"), out=value)
+        np.subtract(value, np.take(self.bg_pad.ravel(), peak, mode="clip"), out=value)
         np.divide(self.psf_contrast[:n], np.maximum(value, 1e-6), out=self.psf_contrast[:n])
         # saturated peaks cannot be measured, and the bright pieces of particle tracks
         # (dozens in an event) are not round: neither takes a star's place
@@ -735,7 +769,7 @@ class DefaultDetector:
         frame = self.input.padded if self.speckle_fit is None else self.delivered_pad
         return self.psf_meter.measure(m, frame, self.bg_pad, self.psf_cand, self.psf_noise,
                                       self.saturation, self.psf.sigma_px,
-                                      self._edge_distance(rows, cols))
+                                      self._edge_distance(rows, cols), min_stars=min_stars)
 
     def _edge_distance(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Pixels from each (row, col) to the frame's nearest edge (a view of a buffer)."""
@@ -1066,15 +1100,7 @@ class DefaultDetector:
         # in or beside a textured tile (its noise well above the smooth sky's at its level)
         # a candidate must have sky on most sides: the edge of lit terrain or foliage is
         # ragged, and its twigs and boulders have sky on one side
-        np.subtract(self.level, level0, out=self.float_grid)
-        np.maximum(self.float_grid, 0.0, out=self.float_grid)
-        np.multiply(self.float_grid, slope, out=self.float_grid)
-        np.add(self.float_grid, var0, out=self.float_grid)
-        np.multiply(self.float_grid, _TEXTURE_NOISE ** 2, out=self.float_grid)
-        np.greater(np.square(self.noise), self.float_grid, out=self.textured)
-        self.textured |= self.level >= _SATURATED_TILE * self.saturation   # flat, but ground
-        cv2.dilate(self.textured.view(np.uint8), _TILE_NEIGHBOURS,
-                   dst=self.near_texture.view(np.uint8))
+        self._mark_texture()
         near = self.cand_near[:n]
         self.grid.at(self.near_texture.view(np.uint8), cand, near)
         need = np.where(near > 0, max(self.cfg.min_sky_sectors, _TEXTURED_SKY_SECTORS),
@@ -1102,6 +1128,21 @@ class DefaultDetector:
                 line & across_a_line(~falling, falling))
         embedded |= self._one_plateau(n, cand, v)
         return embedded
+
+    def _mark_texture(self) -> None:
+        """Mark the textured tiles (noise well above the smooth sky's at their level, or
+        lit ground at saturation) in ``textured``, and them and their neighbours in
+        ``near_texture``."""
+        level0, var0, slope = self.sky_model
+        np.subtract(self.level, level0, out=self.float_grid)
+        np.maximum(self.float_grid, 0.0, out=self.float_grid)
+        np.multiply(self.float_grid, slope, out=self.float_grid)
+        np.add(self.float_grid, var0, out=self.float_grid)
+        np.multiply(self.float_grid, _TEXTURE_NOISE ** 2, out=self.float_grid)
+        np.greater(np.square(self.noise), self.float_grid, out=self.textured)
+        self.textured |= self.level >= _SATURATED_TILE * self.saturation   # flat, but ground
+        cv2.dilate(self.textured.view(np.uint8), _TILE_NEIGHBOURS,
+                   dst=self.near_texture.view(np.uint8))
 
     def _common_elongation(self, n: int, v: dict) -> float:
         """How elongated the frame's significant spots are in one direction: the length of

@@ -46,19 +46,35 @@ from tracker.normal import pixel_fractions
 __all__ = ["StarRoughness"]
 
 _PHASES = ((0.0, 0.0), (0.5, 0.0), (0.5, 0.5))   # a pixel's centre, edge and corner
+# the 4-neighbour Laplacian's taps: (row offset, column offset, weight)
+_TAPS = ((0, 0, 4.0), (-1, 0, -1.0), (1, 0, -1.0), (0, -1, -1.0), (0, 1, -1.0))
 
 
-def _laplacian_energy(side: int) -> np.ndarray:
-    """Q0 = L'L for the 4-neighbour Laplacian on the inner pixels of a side x side window."""
-    inner = side - 2
-    lap = np.zeros((inner, inner, side, side))
-    for i in range(inner):
-        for j in range(inner):
-            lap[i, j, i + 1, j + 1] = 4.0
-            lap[i, j, i, j + 1] = lap[i, j, i + 2, j + 1] = -1.0
-            lap[i, j, i + 1, j] = lap[i, j, i + 1, j + 2] = -1.0
-    lap = lap.reshape(inner * inner, side * side)
-    return lap.T @ lap
+def _shifted(a: np.ndarray, dy: int, dx: int) -> np.ndarray:
+    """``a`` moved by (dy, dx) over its last two axes: out[..., y, x] = a[..., y - dy, x - dx],
+    zero where that is outside."""
+    out = np.zeros_like(a)
+    h, w = a.shape[-2:]
+    out[..., max(dy, 0):h + min(dy, 0), max(dx, 0):w + min(dx, 0)] = \
+        a[..., max(-dy, 0):h + min(-dy, 0), max(-dx, 0):w + min(-dx, 0)]
+    return out
+
+
+def _laplacian_energy(side: int) -> dict[tuple[int, int], np.ndarray]:
+    """Q0 = L'L for the 4-neighbour Laplacian on the inner pixels of a side x side window,
+    by its diagonals: {(dy, dx): M} with M[j] = Q0[j, j + (dy, dx)] (side x side, pixel j
+    in row-major window order; the 13 offsets of the stencil). Q0 has no other non-zero
+    entries, so its products with the PSF take a few small array operations, not the
+    dense (side^2)^2 matrix."""
+    inner = np.zeros((side, side))
+    inner[1:-1, 1:-1] = 1.0
+    diagonals: dict[tuple[int, int], np.ndarray] = {}
+    for ay, ax, wa in _TAPS:
+        centre = _shifted(inner, ay, ax)      # 1 where pixel j - a is an inner centre
+        for by, bx, wb in _TAPS:
+            key = (by - ay, bx - ax)
+            diagonals[key] = diagonals.get(key, 0.0) + wa * wb * centre
+    return diagonals
 
 
 @dataclass(frozen=True)
@@ -83,21 +99,35 @@ class StarRoughness:
         """The constants for windows of radius ``radius`` px and an optical PSF sigma
         ``sigma_px`` (pixel-integrated Gaussian), averaged over ``_PHASES``."""
         side = 2 * int(radius) + 1
-        q_zero = _laplacian_energy(side)
+        diagonals = _laplacian_energy(side)
+        q_diag = diagonals[(0, 0)]
+        # sum_k Q0_jk^2 (each row's), and the whole matrix's
+        row_square = sum(m * m for m in diagonals.values())
         edges = np.arange(-radius, radius + 2, dtype=np.float64) - 0.5
-        rows = []
-        for phase in _PHASES:
-            fx, _ = pixel_fractions(edges - phase[0], sigma_px)
-            fy, _ = pixel_fractions(edges - phase[1], sigma_px)
-            p = np.outer(fy, fx).ravel()
-            e = float(p @ p)
-            r0 = float(p @ q_zero @ p) / e
-            q = q_zero - r0 * np.eye(side * side)
-            qp = q @ p
-            q2 = q * q
-            rows.append((r0, e, float(p @ np.diag(q_zero)), float(qp @ qp),
-                         float(p @ (qp * qp)), float(q2.sum()), float(p @ q2.sum(axis=1)),
-                         float(p @ q2 @ p)))
+        # the three phases' pixel-integrated PSFs, (3, side, side)
+        p = np.stack([np.outer(pixel_fractions(edges - py, sigma_px)[0],
+                               pixel_fractions(edges - px, sigma_px)[0])
+                      for px, py in _PHASES])
+        axes = (1, 2)
+        e = np.sum(p * p, axis=axes)
+        # (Q0 P)_j and P' (Q0 o Q0) P from the diagonals, P moved by each offset
+        q0p = np.zeros_like(p)
+        square_form = np.zeros(len(_PHASES))
+        for (dy, dx), m in diagonals.items():
+            ahead = _shifted(p, -dy, -dx)          # P[j + (dy, dx)]
+            q0p += m * ahead
+            square_form += np.sum(m * m * p * ahead, axis=axes)
+        r0 = np.sum(p * q0p, axis=axes) / e
+        qp = q0p - r0[:, None, None] * p           # Q P, Q = Q0 - r0 I
+        # sums of Q's squares from Q0's: (Q0 - r0 I)^2 entrywise
+        q_row = row_square - 2.0 * r0[:, None, None] * q_diag + (r0 * r0)[:, None, None]
+        rows = np.stack([
+            r0, e, np.sum(p * q_diag, axis=axes), np.sum(qp * qp, axis=axes),
+            np.sum(p * qp * qp, axis=axes),
+            np.sum(row_square) - 2.0 * r0 * np.sum(q_diag) + r0 * r0 * side * side,
+            np.sum(p * q_row, axis=axes),
+            square_form - 2.0 * r0 * np.sum(p * p * q_diag, axis=axes) + r0 * r0 * e],
+            axis=1)
         return cls(*np.mean(rows, axis=0).tolist())
 
     @classmethod
