@@ -339,6 +339,7 @@ class DefaultDetector:
             self.delivered = self.delivered_pad[pad:pad + layout.rows, pad:pad + layout.cols]
         self.cand_noise = np.zeros(cfg.max_candidates, np.float32)
         self.cand_level = np.zeros(cfg.max_candidates, np.float32)
+        self.cand_censor = np.zeros(cfg.max_candidates, np.float32)
         self.edge_px = np.zeros(_PSF_STARS, np.float64)
         self.tail = NoiseTail(self.grid.index)
         self.textured = np.zeros(grid_shape, np.bool_)
@@ -806,14 +807,30 @@ class DefaultDetector:
         self.grid.cap_in_tiles(self.float_grid, self.threshold, self.beside_body)
         self._raise_edges()
 
-    def _centre_plateaus(self, n: int, cand: np.ndarray, v: dict) -> None:
+    def _light_clips(self, bg: np.ndarray) -> np.ndarray:
+        """Whether full scale lies far above each background ``bg`` (ADU): by
+        ``_CLIP_SIGMAS`` of the noise of a smooth sky at that level (the frame's sky
+        noise model), so that a pixel there was clipped by light, not by noise.
+
+        8-bit frames with noise of a third of full scale (the seed's written
+        Gaussian+Poisson) clip the sky's own pixels at full scale, a few per cent
+        of them: such a pixel says nothing about a star, and a fit that took it
+        for one's clipped core would be pulled to it.
+        """
+        level0, var0, slope = self.sky_model
+        return (self.saturation - bg) ** 2 > _CLIP_SIGMAS ** 2 * (
+            var0 + slope * np.maximum(bg - level0, 0.0))
+
+    def _centre_plateaus(self, n: int, cand: np.ndarray, v: dict, light: np.ndarray) -> None:
         """Centre the stars whose clipped core nearly fills the centroid's window on that
         core: the clipped pixels are those inside the PSF's contour at full scale,
         symmetric about the star's centre, and their mean position is it (to about a
         tenth of a pixel), where the window has too few unclipped pixels left to fit.
         At most ``_PLATEAU_STARS`` of them (the first candidates), in boxes as wide
-        as the widest window."""
-        clipped = np.flatnonzero(v["raw_peak"][:n] >= self.saturation)[:_PLATEAU_STARS]
+        as the widest window; only where light clipped them (``light`` (n,),
+        :meth:`_light_clips`)."""
+        clipped = np.flatnonzero((v["raw_peak"][:n] >= self.saturation)
+                                 & light)[:_PLATEAU_STARS]
         k = len(clipped)
         if k == 0:
             return
@@ -867,10 +884,15 @@ class DefaultDetector:
         noise, level = self.cand_noise[:n], self.cand_level[:n]
         self.grid.at(self.noise, cand, noise)
         self.grid.at(self.residual, cand, level)
+        bg = np.take(self.bg_pad.ravel(), cand, mode="clip")
+        light = self._light_clips(bg)
+        censor = self.cand_censor[:n]
+        censor.fill(np.inf)
+        censor[light] = self.saturation
         v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level,
-                                    self.saturation, self.peaks.blended[:n])
+                                    censor, self.peaks.blended[:n])
         if self.speckle_fit is None:
-            self._centre_plateaus(n, cand, v)
+            self._centre_plateaus(n, cand, v, light)
         if self.speckle_fit is not None:  # its likelihood handles saturated stars too
             merged = self.centroider.refine_multiplicative(
                 n, self.speckle_fit, cand, self.delivered_pad, self.bg_pad, level,
@@ -880,14 +902,11 @@ class DefaultDetector:
         # Shape tests against the PSF, for spots whose shape is known (their SNR with
         # their own shot noise, tracker.detect.significance); under multiplicative
         # noise a star's own pixels are spiky, so none applies.
-        # A spot with a pixel at full scale far above its background (by the noise of a
-        # smooth sky at that level: light, not noise, reached it) is judged at any SNR: on
-        # glare a faint one's noise is high, but a star that bright has its shape
+        # A spot with a pixel at full scale far above its background (light, not noise,
+        # reached it) is judged at any SNR: on glare a faint one's noise is high, but a
+        # star that bright has its shape
         saturated = v["raw_peak"] >= self.saturation
-        level0, var0, slope = self.sky_model    # the noise of a smooth sky at that level
-        bg = np.take(self.bg_pad.ravel(), cand, mode="clip")
-        clipped = saturated & ((self.saturation - bg) ** 2 > _CLIP_SIGMAS ** 2 * (
-            var0 + slope * np.maximum(bg - level0, 0.0)))
+        clipped = saturated & light
         known = shot_noise_snr(v["weighted"], v["snr"])
         judged = ((known >= self.cfg.sharp_min_snr) | clipped) & (self.speckle_fit is None)
         # Second moment across the spot's narrowest axis: a PSF's is half its size,
