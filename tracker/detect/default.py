@@ -45,12 +45,16 @@ handled, sigma 3.5 px):
    moved to the same tail probability for the frame's own noise
    distribution (tracker.detect.threshold: a saddlepoint of its background
    pixels' histogram; Cornish-Fisher from the skewness when too few tiles
-   are free of stars or neighbouring pixels are correlated).
+   are free of stars or neighbouring pixels are correlated). Where the sky's
+   own noise reaches full scale (within 4 of its sigmas: 8-bit noise of a
+   third of full scale), the filter is 1.5 times the PSF's width, for the
+   saturated stars that are then most of those at the threshold.
 6. ``peaks``: local maxima above that threshold; close pairs split where the
    profile dips between them (tracker.detect.peaks).
 7. ``centroid``: iterative Gaussian-windowed centroid, then a fit of the
    pixel-integrated PSF for the centre (no pixel-phase bias; saturated
-   pixels censored; tracker.detect.fit), flux, SNR and shape
+   pixels censored where light, not the sky's noise, clipped them;
+   tracker.detect.fit), flux, SNR and shape
    (tracker.detect.windowed). Spots much narrower than the PSF, or rougher
    at the pixel scale than a star of their flux (cosmic-ray clusters that
    survived steps 3-4; tracker.detect.roughness), are rejected and counted
