@@ -67,3 +67,22 @@ def test_saturated_stars_at_the_threshold_are_found_where_noise_clips(found):
     hit = sum(int((d & h).sum()) for d, h, _ in found)
     assert detectable >= 300
     assert hit >= 0.9 * detectable
+
+
+def test_a_frame_after_one_of_clipped_noise_is_searched_with_the_psfs_filter_again():
+    """The wider filter is the clipped-noise frame's only: the next frame, of ordinary noise,
+    gives the stars a detector that never saw clipped noise gives, to the bit."""
+    cfg = DetectConfig(psf_measure=False)
+    clipped, _, _ = next(_frames())
+    rng = np.random.default_rng(5)
+    xs, ys = rng.uniform(20, 620, 40), rng.uniform(20, 620, 40)
+    plain = render_points(SHAPE, xs, ys, 10 ** rng.uniform(2.5, 4.0, 40), SimConfig(), rng,
+                          noise_model="realistic", bit_depth=8).image
+    seen = make_detector(cfg, SHAPE, 8)
+    seen.detect(clipped.image)
+    assert seen.noise_clips
+    after = seen.detect(plain)
+    assert not seen.noise_clips
+    fresh = make_detector(cfg, SHAPE, 8).detect(plain)
+    assert after.count == fresh.count > 20
+    assert np.array_equal(after.stars, fresh.stars)

@@ -400,6 +400,7 @@ class DefaultDetector:
             step, lambda: self._step_constants(sigma_px, kernel))
         self.psf_filter = (kernel, scalars[0], scalars[1], self.edge_gain)
         self._filter_key = None
+        self._set_filter(False)
         self.impulse_contrast, self.impulse_ring = scalars[2:4]
         self.star_roughness = StarRoughness.from_values(scalars[4:])
 
