@@ -50,12 +50,16 @@ handled, sigma 3.5 px):
    moved to the same tail probability for the frame's own noise
    distribution (tracker.detect.threshold: a saddlepoint of its background
    pixels' histogram; Cornish-Fisher from the skewness when too few tiles
-   are free of stars or neighbouring pixels are correlated).
+   are free of stars or neighbouring pixels are correlated). Where the sky's
+   own noise reaches full scale (within 4 of its sigmas: 8-bit noise of a
+   third of full scale), the filter is 1.5 times the PSF's width, for the
+   saturated stars that are then most of those at the threshold.
 6. ``peaks``: local maxima above that threshold; close pairs split where the
    profile dips between them (tracker.detect.peaks).
 7. ``centroid``: iterative Gaussian-windowed centroid, then a fit of the
    pixel-integrated PSF for the centre (no pixel-phase bias; saturated
-   pixels censored; tracker.detect.fit), flux, SNR and shape
+   pixels censored where light, not the sky's noise, clipped them;
+   tracker.detect.fit), flux, SNR and shape
    (tracker.detect.windowed). Spots much narrower than the PSF, or rougher
    at the pixel scale than a star of their flux (cosmic-ray clusters that
    survived steps 3-4; tracker.detect.roughness), are rejected and counted
@@ -189,6 +193,7 @@ _DARK_SIDE_SIGMAS = 10.0       # a tile this much brighter than its darker part 
 _BODY_TOP = 0.9                # ... or whose 90th percentile is that much above its level
 _STEP_OVER_SLOPE = 4.0         # ... and 4 x as far as its level above its darker part
 _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its tail modelled
+_CLIPPED_NOISE_WIDTH = 1.5     # where noise clips at full scale, the filter this much wider
 
 
 def effective_sigma(psf_sigma_px: float) -> float:
@@ -353,12 +358,14 @@ class DefaultDetector:
             self.delivered = self.delivered_pad[pad:pad + layout.rows, pad:pad + layout.cols]
         self.cand_noise = np.zeros(cfg.max_candidates, np.float32)
         self.cand_level = np.zeros(cfg.max_candidates, np.float32)
+        self.cand_censor = np.zeros(cfg.max_candidates, np.float32)
         self.edge_px = np.zeros(_PSF_STARS, np.float64)
         self.tail = NoiseTail(self.grid.index)
         self.textured = np.zeros(grid_shape, np.bool_)
         self.dark_side = np.zeros(grid_shape, np.bool_)
         self.beside_body = np.zeros(grid_shape, np.bool_)   # sky tiles beside a body's
         self.sky_model = (0.0, 0.0, 0.0)   # the frame's sky noise model (_mark_dark_side)
+        self.noise_clips = False           # the sky's noise reaches full scale (_set_filter)
         self.near_texture = np.zeros(grid_shape, np.bool_)
         self.off_sky = np.zeros(grid_shape, np.bool_)
         self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
@@ -397,11 +404,7 @@ class DefaultDetector:
         self.radius = _window_radius(sigma_px)
         blend = 2 * self.radius if self.cfg.blend_radius_px is None else int(
             self.cfg.blend_radius_px)
-        k = 2 * _kernel_half(sigma_px) + 1
-        self.ksize = (k, k)
-        kernel = cv2.getGaussianKernel(k, sigma, cv2.CV_64F).ravel()
-        self.kernel = kernel       # the noise tail's, configured when a frame needs it
-        self._tail_kernel = None
+        kernel = self._gaussian_kernel(sigma_px)
         self.peaks.configure(blend)
         self.centroider.configure(self.radius, sigma)
         self.fit.configure(self.radius, sigma_px)
@@ -411,10 +414,58 @@ class DefaultDetector:
         self.surroundings.configure(int(math.ceil(_SKY_RING_SIGMAS * sigma)))
         scalars, self.edge_gain = self.steps.get(
             step, lambda: self._step_constants(sigma_px, kernel))
-        self._edge_gains(*self.edge_gain)
-        self.filter_gain, self.peak_threshold, self.impulse_contrast, self.impulse_ring = \
-            scalars[:4]
+        self.psf_filter = (kernel, scalars[0], scalars[1], self.edge_gain)
+        self._filter_key = None
+        self._set_filter(False)
+        self.impulse_contrast, self.impulse_ring = scalars[2:4]
         self.star_roughness = StarRoughness.from_values(scalars[4:])
+
+    @staticmethod
+    def _gaussian_kernel(sigma_px: float) -> np.ndarray:
+        """The 1-D matched filter for an optical PSF sigma of ``sigma_px``: the pixel-
+        integrated Gaussian's, ``_kernel_half`` each side."""
+        k = 2 * _kernel_half(sigma_px) + 1
+        return cv2.getGaussianKernel(k, effective_sigma(sigma_px), cv2.CV_64F).ravel()
+
+    def _set_filter(self, wide: bool) -> None:
+        """The matched filter of the search: the PSF's, or, ``wide``, the Gaussian of a
+        star's clipped core in a frame whose noise clips at full scale (:meth:`_light_clips`
+        false at the sky's level): ``_CLIPPED_NOISE_WIDTH`` times the PSF's sigma, at most
+        the widest PSF handled, with its own false-alarm threshold and border gains.
+
+        There (8-bit noise of a third of full scale, the seed's written
+        Gaussian+Poisson) a star saturates at a low SNR, and the stars at the
+        threshold are mostly saturated: the change their light makes to the
+        delivered pixels' mean is flat over a clipped core wider than the PSF, and
+        over a bright sky it is small (full scale is near). The wider filter reads
+        0.95-1.17 of what the PSF's reads of such stars (flux 15-60 times full
+        scale, black sky to 0.3 of full scale), and its threshold is lower: it sums
+        more pixels of noise clipped at both ends, whose tail the PSF's leaves heavy
+        (on a black sky 6.2 filtered sigmas for the budget against 6.6; 5.4 against
+        5.6 at 0.35). An unclipped star loses 8 % of its SNR to it, but under such
+        noise a star faint enough not to saturate is below the threshold anyway.
+        Rebuilt only when the PSF's step or the choice changes.
+        """
+        key = (self._sigma_step, wide)
+        if key == self._filter_key:
+            return
+        self._filter_key = key
+        if wide:
+            sigma_px = min(_CLIPPED_NOISE_WIDTH * self.psf_sigma_used, SIGMA_MAX_PX)
+            kernel = self._gaussian_kernel(sigma_px)
+            gain = float(np.sum(kernel ** 2))
+            threshold = gaussian_peak_threshold(self.cfg.false_alarms_per_frame,
+                                                self.layout.rows * self.layout.cols, kernel)
+            edge = _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols)
+        else:
+            sigma_px = self.psf_sigma_used
+            kernel, gain, threshold, edge = self.psf_filter
+        self.filter_sigma = effective_sigma(sigma_px)
+        self.ksize = (len(kernel), len(kernel))
+        self.kernel = kernel       # the noise tail's, configured when a frame needs it
+        self._tail_kernel = None
+        self.filter_gain, self.peak_threshold = gain, threshold
+        self._edge_gains(*edge)
 
     def _step_constants(self, sigma_px: float,
                         kernel: np.ndarray) -> tuple[tuple, tuple[np.ndarray, np.ndarray]]:
@@ -461,6 +512,7 @@ class DefaultDetector:
         # impulse stage's is still busy with the median), while the impulse limit's is
         # made here
         bg_wait = self.filter_slabs.start(grid.upsample, self.level, self.bg)
+        self.noise_clips = not self._light_clips(self.sky_model[0])
         np.multiply(self.noise, self.cfg.impulse_sigma, out=self.float_grid)
         np.clip(self.float_grid, 0.0, 65535.0, out=self.float_grid)
         np.rint(self.float_grid, out=self.float_grid)
@@ -588,6 +640,7 @@ class DefaultDetector:
         """Filter, threshold, peaks and centroids with the PSF configured; star count."""
         timer, grid = self.timer, self.grid
         timer.start("filter")
+        self._set_filter(self.noise_clips)
         if self.speckle_fit is not None:
             # under multiplicative noise a faint star's own pixels are spikes over a
             # dark sky, which the impulse stage clears (a 3x3 median of a speckled star
@@ -815,7 +868,8 @@ class DefaultDetector:
         return self.grid.at(self.noise, flat, out)
 
     def _matched_filter(self, src: np.ndarray, dst: np.ndarray) -> None:
-        cv2.GaussianBlur(src, self.ksize, self.sigma, dst=dst, borderType=cv2.BORDER_REFLECT)
+        cv2.GaussianBlur(src, self.ksize, self.filter_sigma, dst=dst,
+                         borderType=cv2.BORDER_REFLECT)
 
     def _tail_threshold(self) -> None:
         """threshold_k for this frame (tracker.detect.threshold).
@@ -847,14 +901,30 @@ class DefaultDetector:
         self.grid.cap_in_tiles(self.float_grid, self.threshold, self.beside_body)
         self._raise_edges()
 
-    def _centre_plateaus(self, n: int, cand: np.ndarray, v: dict) -> None:
+    def _light_clips(self, bg: np.ndarray) -> np.ndarray:
+        """Whether full scale lies far above each background ``bg`` (ADU): by
+        ``_CLIP_SIGMAS`` of the noise of a smooth sky at that level (the frame's sky
+        noise model), so that a pixel there was clipped by light, not by noise.
+
+        8-bit frames with noise of a third of full scale (the seed's written
+        Gaussian+Poisson) clip the sky's own pixels at full scale, a few per cent
+        of them: such a pixel says nothing about a star, and a fit that took it
+        for one's clipped core would be pulled to it.
+        """
+        level0, var0, slope = self.sky_model
+        return (self.saturation - bg) ** 2 > _CLIP_SIGMAS ** 2 * (
+            var0 + slope * np.maximum(bg - level0, 0.0))
+
+    def _centre_plateaus(self, n: int, cand: np.ndarray, v: dict, light: np.ndarray) -> None:
         """Centre the stars whose clipped core nearly fills the centroid's window on that
         core: the clipped pixels are those inside the PSF's contour at full scale,
         symmetric about the star's centre, and their mean position is it (to about a
         tenth of a pixel), where the window has too few unclipped pixels left to fit.
         At most ``_PLATEAU_STARS`` of them (the first candidates), in boxes as wide
-        as the widest window."""
-        clipped = np.flatnonzero(v["raw_peak"][:n] >= self.saturation)[:_PLATEAU_STARS]
+        as the widest window; only where light clipped them (``light`` (n,),
+        :meth:`_light_clips`)."""
+        clipped = np.flatnonzero((v["raw_peak"][:n] >= self.saturation)
+                                 & light)[:_PLATEAU_STARS]
         k = len(clipped)
         if k == 0:
             return
@@ -911,12 +981,17 @@ class DefaultDetector:
         rows, cols = self.layout.frame_position(cand)
         inward_starts(cand, rows, cols, self.input.shape, self.input.padded, self.bg_pad,
                       self.layout.stride, self.sigma)
+        bg = np.take(self.bg_pad.ravel(), cand, mode="clip")
+        light = self._light_clips(bg)
+        censor = self.cand_censor[:n]
+        censor.fill(np.inf)
+        censor[light] = self.saturation
         v = self.centroider.measure(n, self.input.padded, self.bg_pad, cand, noise, level,
-                                    self.saturation, self.peaks.blended[:n])
+                                    censor, self.peaks.blended[:n])
         across_x, across_y = cut_axes(rows, cols, self.input.shape, self.radius)
         judge_whole(v, across_x, across_y)
         if self.speckle_fit is None:
-            self._centre_plateaus(n, cand, v)
+            self._centre_plateaus(n, cand, v, light)
         if self.speckle_fit is not None:  # its likelihood handles saturated stars too
             merged = self.centroider.refine_multiplicative(
                 n, self.speckle_fit, cand, self.delivered_pad, self.bg_pad, level,
@@ -926,14 +1001,11 @@ class DefaultDetector:
         # Shape tests against the PSF, for spots whose shape is known (their SNR with
         # their own shot noise, tracker.detect.significance); under multiplicative
         # noise a star's own pixels are spiky, so none applies.
-        # A spot with a pixel at full scale far above its background (by the noise of a
-        # smooth sky at that level: light, not noise, reached it) is judged at any SNR: on
-        # glare a faint one's noise is high, but a star that bright has its shape
+        # A spot with a pixel at full scale far above its background (light, not noise,
+        # reached it) is judged at any SNR: on glare a faint one's noise is high, but a
+        # star that bright has its shape
         saturated = v["raw_peak"] >= self.saturation
-        level0, var0, slope = self.sky_model    # the noise of a smooth sky at that level
-        bg = np.take(self.bg_pad.ravel(), cand, mode="clip")
-        clipped = saturated & ((self.saturation - bg) ** 2 > _CLIP_SIGMAS ** 2 * (
-            var0 + slope * np.maximum(bg - level0, 0.0)))
+        clipped = saturated & light
         known = shot_noise_snr(v["weighted"], v["snr"])
         judged = ((known >= self.cfg.sharp_min_snr) | clipped) & (self.speckle_fit is None)
         # Second moment across the spot's narrowest axis: a PSF's is half its size,

@@ -167,14 +167,16 @@ class PixelGaussianFit:
         np.copyto(grad[:, 2], by_fy[:, 1])
 
     def run(self, m: int, signal: np.ndarray, raw: np.ndarray, x: np.ndarray, y: np.ndarray,
-            noise: np.ndarray, saturation: float, max_shift: float,
+            noise: np.ndarray, saturation: float | np.ndarray, max_shift: float,
             inside: np.ndarray | None = None) -> np.ndarray:
         """Refine centres ``x``, ``y`` (m,) in place; returns the fitted fluxes (m,).
 
         ``signal`` (m, side^2): background-subtracted windows, ADU; ``raw``
         the same pixels as delivered (for the saturation test); centres are
         px from each window's centre pixel; ``noise`` (m,) the background's
-        pixel noise, ADU. ``inside`` (m, side^2), if given, is false for the
+        pixel noise, ADU; ``saturation`` (ADU) one level for all or one per
+        star (m,), inf for a star none of whose pixels is to be left out.
+        ``inside`` (m, side^2), if given, is false for the
         window's pixels beyond the frame's edge: they are left out like
         clipped ones, so a star cut by the edge is fitted on the light the
         frame holds and its centre may lie beyond the edge (up to
@@ -188,6 +190,8 @@ class PixelGaussianFit:
         np.sum(signal, axis=1, out=flux)
         np.maximum(flux, 1.0, out=flux)
         usable = v["usable"]
+        if np.ndim(saturation):
+            saturation = saturation[:m, None, None]
         np.less(raw.reshape(grid), saturation, out=usable)   # 1.0 where not clipped
         if inside is not None:
             np.multiply(usable, inside.reshape(grid), out=usable)

@@ -124,14 +124,16 @@ class WindowedCentroider:
         return views
 
     def measure(self, n: int, image_pad: np.ndarray, bg_pad: np.ndarray, cand: np.ndarray,
-                noise: np.ndarray, level: np.ndarray, saturation: float = np.inf,
+                noise: np.ndarray, level: np.ndarray,
+                saturation: float | np.ndarray = np.inf,
                 blended: np.ndarray | None = None) -> dict:
         """Measure the ``n`` stars at padded flat indices ``cand[:n]``; views of length n.
 
         ``image_pad`` holds the frame and ``bg_pad`` its background, both padded
         the same way; ``level`` (n,) a further background offset per star and
         ``noise`` (n,) the background noise at each star, ADU. With a fit,
-        pixels at or above ``saturation`` (ADU) are left out of it, and stars
+        pixels at or above ``saturation`` (ADU; one level, or one per star (n,))
+        are left out of it, and stars
         marked in ``blended`` (n,) keep their windowed centres: a single
         star's model fitted to a window holding two is pulled between them,
         while the Gaussian weight keeps most of the neighbour out.
@@ -141,7 +143,8 @@ class WindowedCentroider:
             b = min(n, a + self.chunk)
             part = {name: arr[a:b] for name, arr in v.items()}
             self._measure_chunk(b - a, image_pad, bg_pad, cand[a:b], noise[a:b], level[a:b],
-                                saturation, None if blended is None else blended[a:b], part)
+                                saturation[a:b] if np.ndim(saturation) else saturation,
+                                None if blended is None else blended[a:b], part)
         return v
 
     def _measure_chunk(self, m: int, image_pad, bg_pad, cand, noise, level, saturation,
@@ -180,7 +183,8 @@ class WindowedCentroider:
             rows = np.flatnonzero(fit)
             if len(rows):
                 x, y = x0[rows], y0[rows]
-                self.fit.run(len(rows), s[rows], win[rows], x, y, noise[rows], saturation,
+                self.fit.run(len(rows), s[rows], win[rows], x, y, noise[rows],
+                             saturation[rows] if np.ndim(saturation) else saturation,
                              self.max_shift, None if inside is None else inside[rows])
                 x0[rows], y0[rows] = x, y
 
