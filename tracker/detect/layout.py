@@ -1,4 +1,4 @@
-"""Padded frame buffers and sparse pixel lists.
+"""Padded frame buffers, sparse pixel lists and a frame's square windows as one view.
 
 Every full-size buffer of a detector has the same layout: the frame's
 (rows, cols) pixels sit inside a zero border of ``pad`` pixels, and rows are
@@ -12,7 +12,17 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["PaddedLayout"]
+__all__ = ["PaddedLayout", "window_view"]
+
+
+def window_view(image: np.ndarray, size: int) -> np.ndarray:
+    """Every ``size`` x ``size`` window of ``image`` as one read-only view (rows - size + 1,
+    cols - size + 1, size, size), indexed by the window's top-left pixel (no copy): indexing
+    it with arrays of top-left rows and columns copies those windows in one gather."""
+    image = np.ascontiguousarray(image)
+    step = image.strides
+    return np.ndarray((image.shape[0] - size + 1, image.shape[1] - size + 1, size, size),
+                      image.dtype, image, 0, step + step)
 
 
 class PaddedLayout:

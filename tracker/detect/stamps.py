@@ -71,6 +71,7 @@ from tracker.config import DetectConfig
 from tracker.detect.background import QUANTISATION_NOISE_ADU
 from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.impulse import psf_contrast, psf_ring
+from tracker.detect.layout import window_view
 from tracker.detect.psf import PsfEstimate
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.stars import StarTable
@@ -96,15 +97,6 @@ _BLEND_STEPS = 2               # windowed-centroid steps of a blended star from 
 _MAX_SHIFT_PX = 1.5            # the fit's centre stays this close to the peak pixel
 _SAME_STAR_PX = 1.0            # one star's detections in overlapping windows lie closer
 _NEIGHBOURS = np.ones((3, 3), np.uint8)
-
-
-def _window_view(image: np.ndarray, size: int) -> np.ndarray:
-    """Every ``size`` x ``size`` window of ``image`` as one read-only view (rows - size + 1,
-    cols - size + 1, size, size), indexed by the window's top-left pixel (no copy)."""
-    image = np.ascontiguousarray(image)
-    step = image.strides
-    return np.ndarray((image.shape[0] - size + 1, image.shape[1] - size + 1, size, size),
-                      image.dtype, image, 0, step + step)
 
 
 def _effective_sigma(sigma_px: float) -> float:
@@ -218,7 +210,7 @@ class StampDetector:
         return self.table.result(count, None, self.counters, timer.ms, psf)
 
     def _gather(self, image: np.ndarray, origins: np.ndarray) -> None:
-        self.raw[...] = _window_view(image, self.cell)[origins[:, 1], origins[:, 0]]
+        self.raw[...] = window_view(image, self.cell)[origins[:, 1], origins[:, 0]]
 
     def _background(self) -> None:
         """Each window's level and pixel noise from its border ring (module docstring)."""
@@ -280,7 +272,7 @@ class StampDetector:
         side = 2 * self.radius + 1
         big = side + 2
         corner = self.radius + 1
-        wide = _window_view(image, big)[origins[win, 1] + py - corner,
+        wide = window_view(image, big)[origins[win, 1] + py - corner,
                                         origins[win, 0] + px - corner].astype(np.float32)
         keep = np.ones(m, bool)
         if m == 0:

@@ -72,6 +72,36 @@ class FrameFit:
     residuals: np.ndarray    # (n,) distance from each star to its prediction, px
 
 
+def _solve_spd(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """X with A X = B for a small symmetric positive definite A (k, k), B (k,) or (k, m).
+
+    Cholesky in Python floats: LAPACK's solve and inverse, called from the
+    frame loop between the detector's calls, cost from a few microseconds to
+    a millisecond on a busy machine (a lens frame makes up to ten); this
+    costs 10-15 us each, steadily. Raises np.linalg.LinAlgError when A is
+    not positive definite.
+    """
+    a = A.tolist()
+    k = len(a)
+    L = [[0.0] * k for _ in range(k)]
+    for i in range(k):
+        for j in range(i + 1):
+            acc = a[i][j] - sum(L[i][t] * L[j][t] for t in range(j))
+            if i == j:
+                if not acc > 0.0:
+                    raise np.linalg.LinAlgError("matrix is not positive definite")
+                L[i][i] = math.sqrt(acc)
+            else:
+                L[i][j] = acc / L[j][j]
+    columns = B.reshape(k, -1).T.tolist()
+    for col in columns:
+        for i in range(k):          # L y = b
+            col[i] = (col[i] - sum(L[i][t] * col[t] for t in range(i))) / L[i][i]
+        for i in reversed(range(k)):  # L^T x = y
+            col[i] = (col[i] - sum(L[t][i] * col[t] for t in range(i + 1, k))) / L[i][i]
+    return np.array(columns).T.reshape(B.shape)
+
+
 def _project_with_jacobian(camera: CameraModel, c: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray]:
     """Pixels (n, 2) of camera-frame vectors and d(pixel)/d(theta, f, k1) (n, 2, 5)."""
@@ -133,7 +163,7 @@ def fit_frame(xy: np.ndarray, ref: np.ndarray, R0: np.ndarray, camera: CameraMod
         bp = b.copy()
         bp[3:] += P @ (m - x)
         try:
-            step = np.linalg.solve(Hp, bp)
+            step = _solve_spd(Hp, bp)
         except np.linalg.LinAlgError:
             break
         R = matrix_from_rotation_vector(step[:3]) @ R
@@ -145,13 +175,13 @@ def fit_frame(xy: np.ndarray, ref: np.ndarray, R0: np.ndarray, camera: CameraMod
     # eliminate theta: the frame's information on (f, k1) alone
     Htt, Htl = H[:3, :3], H[:3, 3:]
     try:
-        solve_t = np.linalg.solve(Htt, np.column_stack((Htl, b[:3])))
+        solve_t = _solve_spd(Htt, np.column_stack((Htl, b[:3])))
     except np.linalg.LinAlgError:
         solve_t = np.zeros((3, 3))
     info = H[3:, 3:] - Htl.T @ solve_t[:, :2]
     grad = b[3:] - Htl.T @ solve_t[:, 2]
     x = np.array([cam.f_px, cam.k1])
-    cov = np.linalg.inv(info + P)
+    cov = _solve_spd(info + P, np.eye(2))
     return FrameFit(R=R, camera=cam, cov=cov, info=info, info_vector=info @ x + grad,
                     sigma_px=math.sqrt(sigma2), residuals=np.hypot(d[:, 0], d[:, 1]))
 
@@ -203,7 +233,7 @@ class LensFilter:
 
     def _estimate(self) -> LensState:
         P = self.prior.information
-        cov = np.linalg.inv(P + self._info)
+        cov = _solve_spd(P + self._info, np.eye(2))
         x = cov @ (P @ self.prior.mean + self._vector)
         return LensState(f_px=float(x[0]), sigma_f_px=math.sqrt(cov[0, 0]), k1=float(x[1]),
                          sigma_k1=math.sqrt(cov[1, 1]), frames=self._frames)

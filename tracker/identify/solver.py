@@ -389,10 +389,10 @@ class Solver:
             tracked = self._track(xy, lens_cam, t_ns, subset, predicted_xy)
             if tracked is not None:
                 timer.start("refine")
-                R, pairs = tracked
+                R, pairs, ref = tracked
                 sol = self._finish(R, None, xy, flux, idx, hip, t_ns, "tracking", None, None,
                                    search_area_px or self._area, subset,
-                                   None if predicted_xy is None else pairs)
+                                   None if predicted_xy is None else (pairs, ref))
                 if sol is not None:
                     return sol
         if search_area_px is not None:
@@ -540,10 +540,12 @@ class Solver:
         return subset[inside], pix[inside]
 
     def _track(self, xy, camera: CameraModel, t_ns: int, subset: np.ndarray | None = None,
-               subset_xy: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
-        """The attitude from the predicted one after one gated pass and the pass's pairs
-        (per image star its index into the predictions, ``subset`` when given, or -1), or
-        None.
+               subset_xy: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The attitude from the predicted one after one gated pass, the pass's pairs (per
+        image star its index into the predictions, ``subset`` when given, or -1) and the
+        paired stars' catalogue directions as this frame's observer sees them (the paired
+        image stars' order), or None.
 
         ``subset_xy``: the pixels of ``subset`` at the predicted attitude, if known.
         """
@@ -555,8 +557,8 @@ class Solver:
         ok = which >= 0
         if np.count_nonzero(ok) < self.cfg.min_matched:
             return None
-        return solve_wahba(self._observed(camera, xy)[ok], self._seen(cat_idx[which[ok]]),
-                           self._weights(ok)), which
+        ref = self._seen(cat_idx[which[ok]])
+        return solve_wahba(self._observed(camera, xy)[ok], ref, self._weights(ok)), which, ref
 
     def _weights(self, ok: np.ndarray) -> np.ndarray | None:
         """Wahba's weights (module docstring, refinement) of this frame's stars ``ok``
@@ -657,10 +659,13 @@ class Solver:
         return ok, which, cat_idx, pred, dist
 
     def _match_pairs(self, R, camera, xy, flux, radius: float, cat_idx: np.ndarray,
-                     pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     pairs: np.ndarray, ref: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(ok mask, which, distances) as :meth:`_match_catalogue` gives them, from the gated
-        pass's ``pairs`` into ``cat_idx``: each paired star keeps its star if within
-        ``radius`` of it at ``R``.
+        pass's ``pairs`` into ``cat_idx`` and their directions ``ref`` (:meth:`_track`):
+        each paired star keeps its star if within ``radius`` of it at ``R``; then which of
+        the pairs were kept (a mask over them) and ``ref`` rotated by ``R`` (the camera
+        frame).
 
         Only the paired stars are projected and nothing is searched: the
         windows' predictions are the stars that carry the attitude, far apart
@@ -668,27 +673,31 @@ class Solver:
         so a star's nearest prediction does not change with it.
         """
         rows = np.flatnonzero(pairs >= 0)
-        pix = camera.vector_to_pixel(self._seen(cat_idx[pairs[rows]]) @ R.T)
+        rotated = ref @ R.T
+        pix = camera.vector_to_pixel(rotated)
         d = np.hypot(pix[:, 0] - xy[rows, 0], pix[:, 1] - xy[rows, 1])
-        rows, d = rows[d <= radius], d[d <= radius]
         which = np.full(len(xy), -1, np.int64)
         dist = np.full(len(xy), np.inf)
-        which[rows], dist[rows] = pairs[rows], d
+        near = d <= radius
+        which[rows[near]], dist[rows[near]] = pairs[rows[near]], d[near]
         ok = which >= 0
         self._photometric_check(ok, which, cat_idx, flux)
-        return ok, which, dist
+        return ok, which, dist, ok[rows], rotated
 
     def _finish(self, R, prob, xy, flux, idx, hip, t_ns, mode, budget, f_px,
                 area_px: float | None = None, subset: np.ndarray | None = None,
-                pairs: np.ndarray | None = None) -> Solution | None:
+                gated: tuple[np.ndarray, np.ndarray] | None = None) -> Solution | None:
         """Refine against the catalogue, fit the lens, update the state (module docstring).
 
         ``prob`` None (tracking) means: verify here, with the refined matches
         (the stars found in ``area_px``); returns None if they do not verify.
         ``f_px``: the focal length lost in space found with ``R`` (None: the
-        filtered lens's). ``subset``: windowed tracking (see :meth:`solve`); ``pairs``
-        its gated pass's pairs (:meth:`_track`), which the refined matches are
-        taken from (:meth:`_match_pairs`).
+        filtered lens's). ``subset``: windowed tracking (see :meth:`solve`); ``gated``
+        its gated pass's pairs and their directions (:meth:`_track`), which the
+        refined matches are taken from (:meth:`_match_pairs`) with no catalogue
+        lookup of their own; when it keeps every pair and the lens is the one
+        the gated pass saw, the gated pass's attitude is the answer (Wahba on
+        the same stars) and its rotated directions give the residuals.
         """
         cfg = self.cfg
         camera = self.lens_camera()
@@ -706,12 +715,13 @@ class Solver:
             first = fit_frame(xy[ok], self._seen(cat_idx[which[ok]]), R, camera,
                               self._prior, cfg.centroid_sigma_px)
             R, camera, radius = first.R, first.camera, self._final_radius(first.residuals)
-        if pairs is None:
+        if gated is None:
             ok, which, cat_idx, pred, dist = self._match_catalogue(R, camera, xy, flux, radius,
                                                                    subset)
             predicted = len(pred)
         else:
-            ok, which, dist = self._match_pairs(R, camera, xy, flux, radius, subset, pairs)
+            ok, which, dist, kept, rotated = self._match_pairs(R, camera, xy, flux, radius,
+                                                               subset, *gated)
             cat_idx, predicted = subset, len(subset)
         n = int(np.count_nonzero(ok))
         if prob is None:
@@ -720,8 +730,14 @@ class Solver:
                 return None
         if n < 4:
             return None
-        ref = self._seen(cat_idx[which[ok]])
-        mags = self._cat_mag[cat_idx[which[ok]]]
+        matched = cat_idx[which[ok]]
+        if gated is None:
+            ref = self._seen(matched)
+        elif kept.all():
+            ref = gated[1]
+        else:
+            ref, rotated = gated[1][kept], rotated[kept]
+        mags = self._cat_mag[matched]
         if self._snr is not None:
             snr = self._snr[ok]
             seen = snr > 0
@@ -741,15 +757,16 @@ class Solver:
         lens_cam = self.lens_camera()
         observed = self._observed(lens_cam, xy)
         obs = observed[ok]
-        if not (pairs is not None and lens_cam is camera and np.array_equal(ok, pairs >= 0)):
+        if not (gated is not None and lens_cam is camera and kept.all()):
             # (else the gated pass solved it from these stars through this lens: that R)
             R = solve_wahba(obs, ref, self._weights(ok))
-        resid2 = float(np.square(obs - ref @ R.T).sum())
+            rotated = ref @ R.T
+        resid2 = float(np.square(obs - rotated).sum())
         sigma0 = cfg.centroid_sigma_px / lens_cam.f_px
         sigma = math.sqrt((resid2 + _PRIOR_DOF * sigma0 ** 2)
                           / max(1.0, 2 * n - 3 + _PRIOR_DOF))
         P = attitude_covariance(obs, sigma)
-        hip[idx[ok]] = self._cat_hip[cat_idx[which[ok]]]
+        hip[idx[ok]] = self._cat_hip[matched]
         ra, dec, roll = radec_roll_from_matrix(_centre_rotation(lens_cam) @ R)
         rate = rate_sigma = None
         if self._last_R is not None and self._last_t is not None and \
