@@ -104,12 +104,16 @@ def test_track_remnants_are_rejected(monkeypatch):
     """Pieces of diffused particle tracks (200 a frame, a few pixels long, charge spread
     0.45 px; tracker.sim.scene) among stars of PSF sigma 0.8 px: the remnant rule (narrow
     and rougher than a star of the spot's flux, by 3 times and beyond 4 of its noise's
-    spreads) rejects pieces the rest of the detector lets through (18 false detections
-    in three frames, 27 without it), and no star no track crossed is lost. (At 120
+    spreads) rejects pieces the rest of the detector lets through, and no star no track
+    crossed is lost. Since frames whose bright peaks give no PSF measure it on the frame
+    binned before their one search, the rest of the detector lets through few: 8 false
+    detections in three frames, 9 without the rule (18 and 27 when such frames kept the
+    prior 1.2 px for their first search); the bound of 10 keeps that gain. (At 120
     tracks and 1 px the impulse stage's cleared tracks leave 2 pieces, with the rule
     or without.)"""
     found, clear, false = _run(11, 0.8, (150.0, 1500.0), 40, 200)
     assert found == clear
+    assert false <= 10, false
     monkeypatch.setattr(default, "_REMNANT_ROUGH", np.inf)
     _, _, false_without = _run(11, 0.8, (150.0, 1500.0), 40, 200)
-    assert false <= false_without - 5, (false, false_without)
+    assert false < false_without, (false, false_without)
