@@ -330,16 +330,19 @@ class PsfMeter:
         np.multiply(g, scale[:, None], out=g)
         np.exp(g, out=g)
         (ex, ey), (gx, gy) = e, g
-        shape = (n, side, 3)
-        cols = self._axis[: n * side * 3].reshape(shape)
-        rows = self._rows[: n * side * 3].reshape(shape)
+        # the first moments need no sum(W S ex^2): two columns, not three
+        k = 3 if second else 2
+        shape = (n, side, k)
+        cols = self._axis[: n * side * k].reshape(shape)
+        rows = self._rows[: n * side * k].reshape(shape)
         np.copyto(cols[..., 0], gx)
         np.multiply(gx, ex, out=cols[..., 1])
-        np.multiply(cols[..., 1], ex, out=cols[..., 2])
-        np.matmul(v["s"].reshape(n, side, side), cols, out=rows)  # S (gx, gx ex, gx ex^2)
+        if second:
+            np.multiply(cols[..., 1], ex, out=cols[..., 2])
+        np.matmul(v["s"].reshape(n, side, side), cols, out=rows)  # S (gx, gx ex[, gx ex^2])
         gy_e = self._gy_e[: 2 * n * side].reshape(2, n, side)  # (gy ey, gy ey^2)
         np.multiply(gy, ey, out=gy_e[0])
-        by_gy = np.einsum("ij,ijk->ik", gy, rows)   # S0, sum(W S ex), sum(W S ex^2)
+        by_gy = np.einsum("ij,ijk->ik", gy, rows)   # S0, sum(W S ex)[, sum(W S ex^2)]
         p["s0"][:] = by_gy[:, 0]
         denom = np.maximum(p["s0"], 1e-12)
         moments = self._per_star[2:4, :n]            # (mxx, myy)
