@@ -52,8 +52,8 @@ class BinnedPeaks:
         self.shape = (max(1, layout.rows // BIN_PX), max(1, layout.cols // BIN_PX))
         self.binned = np.zeros(self.shape, np.uint16)
         self.values = np.zeros(self.shape, np.float32)
-        self.before = np.zeros(self.shape, np.float32)
-        self.after = np.zeros(self.shape, np.float32)
+        self.before = np.zeros(self.shape, np.uint16)   # the binned means' maxima around
+        self.after = np.zeros(self.shape, np.uint16)
         self.level = np.zeros(self.shape, np.float32)
         self.noise = np.zeros(self.shape, np.float32)
         self.threshold = np.zeros(self.shape, np.float32)
@@ -87,10 +87,10 @@ class BinnedPeaks:
         np.sqrt(self.noise, out=self.noise)
         np.multiply(self.noise, min_snr, out=self.threshold)
         np.add(self.threshold, self.level, out=self.threshold)
-        cv2.dilate(self.values, _BEFORE, dst=self.before)
-        cv2.dilate(self.values, _AFTER, dst=self.after)
-        np.greater(self.values, self.before, out=self.above)
-        self.above &= self.values >= self.after
+        cv2.dilate(self.binned, _BEFORE, dst=self.before)
+        cv2.dilate(self.binned, _AFTER, dst=self.after)
+        np.greater(self.binned, self.before, out=self.above)
+        self.above &= self.binned >= self.after
         self.above &= self.values > self.threshold
         idx = np.flatnonzero(self.above)
         if len(idx) == 0:

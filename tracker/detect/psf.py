@@ -204,7 +204,8 @@ class PsfMeter:
         p = {name: arr[:n] for name, arr in self.per_star.items()}
         p["w2"].fill(max(sigma_start ** 2 + PIXEL_VARIANCE, _MIN_WEIGHT_PX ** 2))
         first = min(n, _SCOUTS)
-        self._iterate(first, self.radius, image_pad, bg_pad, cand, p, _SCOUT_ITERATIONS)
+        self._iterate(first, self.radius, image_pad, bg_pad, cand, p, _SCOUT_ITERATIONS,
+                      final=False)
         w_typical = math.sqrt(median(p["w2"][:first]))
         p["w2"].fill(w_typical ** 2)
         radius = min(self.radius, int(math.ceil(_RING[1] * w_typical * _RING_MARGIN)) + 1)
@@ -250,9 +251,13 @@ class PsfMeter:
         return out
 
     def _iterate(self, n: int, radius: int, image_pad, bg_pad, cand, p: dict,
-                 iterations: int) -> dict:
+                 iterations: int, final: bool = True) -> dict:
         """Adaptive moments of the first ``n`` stars in windows of ``radius``; returns the
-        window views (their ``s`` holds the background-subtracted light)."""
+        window views (their ``s`` holds the background-subtracted light).
+
+        ``final`` False: only the weights (w2) and centres are wanted (the scouts',
+        whose moments and covariances the next pass writes afresh), not the
+        moments under the last weight."""
         offsets, _ = self._window(radius)
         v = self._views(n, len(offsets))
         np.add(cand[:n, None], offsets[None, :], out=v["index"])
@@ -267,8 +272,9 @@ class PsfMeter:
         w2 = q["w2"]
         with np.errstate(invalid="ignore", divide="ignore"):   # for _deconvolve_weight
             self._adapt(q, v, radius, iterations, xy, moments, move, w2)
-            self._weighted(q, v, radius, second=True)
-            _deconvolve_weight(q)
+            if final:
+                self._weighted(q, v, radius, second=True)
+                _deconvolve_weight(q)
         return v
 
     def _adapt(self, q: dict, v: dict, radius: int, iterations: int, xy: np.ndarray,
@@ -330,16 +336,19 @@ class PsfMeter:
         np.multiply(g, scale[:, None], out=g)
         np.exp(g, out=g)
         (ex, ey), (gx, gy) = e, g
-        shape = (n, side, 3)
-        cols = self._axis[: n * side * 3].reshape(shape)
-        rows = self._rows[: n * side * 3].reshape(shape)
+        # the first moments need no sum(W S ex^2): two columns, not three
+        k = 3 if second else 2
+        shape = (n, side, k)
+        cols = self._axis[: n * side * k].reshape(shape)
+        rows = self._rows[: n * side * k].reshape(shape)
         np.copyto(cols[..., 0], gx)
         np.multiply(gx, ex, out=cols[..., 1])
-        np.multiply(cols[..., 1], ex, out=cols[..., 2])
-        np.matmul(v["s"].reshape(n, side, side), cols, out=rows)  # S (gx, gx ex, gx ex^2)
+        if second:
+            np.multiply(cols[..., 1], ex, out=cols[..., 2])
+        np.matmul(v["s"].reshape(n, side, side), cols, out=rows)  # S (gx, gx ex[, gx ex^2])
         gy_e = self._gy_e[: 2 * n * side].reshape(2, n, side)  # (gy ey, gy ey^2)
         np.multiply(gy, ey, out=gy_e[0])
-        by_gy = np.einsum("ij,ijk->ik", gy, rows)   # S0, sum(W S ex), sum(W S ex^2)
+        by_gy = np.einsum("ij,ijk->ik", gy, rows)   # S0, sum(W S ex)[, sum(W S ex^2)]
         p["s0"][:] = by_gy[:, 0]
         denom = np.maximum(p["s0"], 1e-12)
         moments = self._per_star[2:4, :n]            # (mxx, myy)
