@@ -468,21 +468,26 @@ class Solver:
         # the catalogue stars in the image bright enough, brightest first (the cone is kept
         # by magnitude: only those are projected), then the unidentified stars followed
         # that are in the image (index -1)
+        unknown = self._unknown[:cfg.track_window_unknown]
         found, cam, pix = self._cat_proj.project(
             R, camera, beta=beta, key_max=self._faintest + cfg.track_window_mag_margin,
-            extra=self._unknown[:cfg.track_window_unknown])
-        named = len(found) - np.count_nonzero(found < 0)
+            extra=unknown)
+        named = len(found) - (np.count_nonzero(found < 0) if len(unknown) else 0)
         if self._snr_zero is None:
-            rows = np.arange(min(named, cfg.track_window_stars))
+            rows = slice(min(named, cfg.track_window_stars))
         else:
             snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[found[:named]])
             rows = informative(pix[:named], snr, (camera.cx, camera.cy),
                                cfg.track_window_information)[:cfg.track_window_stars]
-        rows = np.concatenate((rows, np.arange(named, len(found))))
+        if named < len(found):
+            rows = np.concatenate((np.arange(named)[rows], np.arange(named, len(found))))
         catalogue, cam, xy = found[rows], cam[rows], pix[rows]
         # uncertainties and smears of the stars given windows only
         accel = math.radians(cfg.track_accel_deg_s2) * 0.5 * dt * dt
-        P = self._last_P + self._rate_P * dt * dt + np.eye(3) * accel * accel
+        P = self._rate_P * dt
+        P *= dt
+        P += self._last_P
+        P.flat[::4] += accel * accel
         sigma, smear = spread_and_smear(camera, cam, P, -self._rate, exposure_s)
         return TrackPrediction(R=R, xy=xy, sigma_px=sigma, smear_px=smear,
                                catalogue=catalogue, dt_s=dt)

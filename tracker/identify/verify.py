@@ -109,7 +109,7 @@ class Projector:
             near, seen = near[:upto], seen[:upto]
         if beta is not None:
             seen = aberrate(seen, beta)
-        if extra is not None:
+        if extra is not None and len(extra):
             seen = np.concatenate((seen, extra))
             near = np.concatenate((near, np.full(len(extra), -1, near.dtype)))
         cam = seen @ R.T

@@ -90,10 +90,8 @@ class WindowPlanner:
             return None
         n_star = min(len(prediction.xy), self.capacity - self.sweep)
         o = self.origins
-        o[:n_star, 0] = np.clip(np.rint(prediction.xy[:n_star, 0] - 0.5 * (cell - 1)), 0,
-                                self.width - cell)
-        o[:n_star, 1] = np.clip(np.rint(prediction.xy[:n_star, 1] - 0.5 * (cell - 1)), 0,
-                                self.height - cell)
+        o[:n_star] = np.clip(np.rint(prediction.xy[:n_star] - 0.5 * (cell - 1)), 0,
+                             (self.width - cell, self.height - cell))
         self._sweep(cell, n_star)
         return WindowPlan(cell=cell, origins=o, stars=n_star,
                           area_px=float(self.capacity * cell * cell))
@@ -108,7 +106,7 @@ class WindowPlanner:
         down = -(-self.height // cell)
         x, y = self._next
         start = (min(y // cell, down - 1)) * across + min(x // cell, across - 1)
-        steps = (start + np.arange(self.capacity - first + 1)) % (across * down)
+        steps = np.arange(start, start + self.capacity - first + 1) % (across * down)
         row, col = np.divmod(steps, across)
         self.origins[first:, 0] = np.minimum(col[:-1] * cell, self.width - cell)
         self.origins[first:, 1] = np.minimum(row[:-1] * cell, self.height - cell)
