@@ -12,6 +12,8 @@ Angles are radians unless a name says ``_deg``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = [
@@ -182,14 +184,19 @@ def rotation_vector(R: np.ndarray) -> np.ndarray:
 
 def matrix_from_rotation_vector(theta: np.ndarray) -> np.ndarray:
     """Rotation matrix exp([theta]x) of a rotation vector (radians), Rodrigues' formula."""
-    theta = np.asarray(theta, dtype=np.float64)
-    angle = float(np.linalg.norm(theta))
-    K = np.array([[0.0, -theta[2], theta[1]], [theta[2], 0.0, -theta[0]],
-                  [-theta[1], theta[0], 0.0]])
+    # in Python floats: a 3-vector's nine numpy calls cost more than its arithmetic
+    # (tracking calls it every frame); K K = theta theta^T - angle^2 I
+    x, y, z = (float(t) for t in theta)
+    angle2 = x * x + y * y + z * z
+    angle = math.sqrt(angle2)
     if angle < 1e-12:
-        return np.eye(3) + K
-    return (np.eye(3) + np.sin(angle) / angle * K
-            + (1.0 - np.cos(angle)) / angle ** 2 * (K @ K))
+        a, b = 1.0, 0.0
+    else:
+        a, b = math.sin(angle) / angle, (1.0 - math.cos(angle)) / angle2
+    c = 1.0 - b * angle2
+    return np.array([[c + b * x * x, b * x * y - a * z, b * x * z + a * y],
+                     [b * x * y + a * z, c + b * y * y, b * y * z - a * x],
+                     [b * x * z - a * y, b * y * z + a * x, c + b * z * z]])
 
 
 def attitude_error(R_est: np.ndarray, R_true: np.ndarray) -> tuple[float, float]:
