@@ -113,9 +113,8 @@ class CameraModel:
         """
         vectors = np.asarray(vectors, dtype=np.float64)
         z = vectors[..., 2:3]
-        # (u, v) = (X, Y) / Z; NaN behind the camera, without a warning
-        uv = np.divide(vectors[..., :2], z, out=np.full(vectors.shape[:-1] + (2,), np.nan),
-                       where=z > 0)
+        # (u, v) = (X, Y) / Z; NaN behind the camera, without a warning (X / NaN raises none)
+        uv = vectors[..., :2] / np.where(z > 0, z, np.nan)
         sq = uv * uv
         r2 = sq[..., 0] + sq[..., 1]
         uv *= (1.0 + r2 * (self.k1 + self.k2 * r2))[..., None]     # distorted
@@ -139,6 +138,6 @@ class CameraModel:
         """Boolean mask: pixel positions inside the image, ``margin`` px from its edge."""
         pixels = np.asarray(pixels, dtype=np.float64)
         x, y = pixels[..., 0], pixels[..., 1]
-        with np.errstate(invalid="ignore"):
-            return ((x >= -0.5 + margin) & (x <= self.width - 0.5 - margin)
-                    & (y >= -0.5 + margin) & (y <= self.height - 0.5 - margin))
+        # (a NaN compares false, with no warning)
+        return ((x >= -0.5 + margin) & (x <= self.width - 0.5 - margin)
+                & (y >= -0.5 + margin) & (y <= self.height - 0.5 - margin))
