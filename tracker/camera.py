@@ -79,6 +79,11 @@ class CameraModel:
         ends = self.pixel_to_vector(np.array([[-0.5, self.cy], [self.width - 0.5, self.cy]]))
         return float(np.arccos(np.clip(ends[0] @ ends[1], -1.0, 1.0)))
 
+    def _radial(self, r2: np.ndarray) -> np.ndarray | float:
+        """k1 + k2 r^2 at ``r2`` = r^2: k1 when k2 is 0 (the same numbers for finite r2,
+        with two numpy calls fewer in the loops that call it)."""
+        return self.k1 + self.k2 * r2 if self.k2 else self.k1
+
     def _undistort(self, distorted: np.ndarray) -> np.ndarray:
         """Invert the radial model: solve rho*(1+k1 rho^2+k2 rho^4) = rho_d for rho.
 
@@ -91,12 +96,12 @@ class CameraModel:
         sq = distorted * distorted
         rho_d = np.sqrt(sq[..., 0] + sq[..., 1])
         r2 = rho_d * rho_d
-        rho = rho_d / (1.0 + r2 * (self.k1 + self.k2 * r2))
+        rho = rho_d / (1.0 + r2 * self._radial(r2))
         tolerance = 1e-16 * (1.0 + rho_d)
         for _ in range(_NEWTON_STEPS):
             r2 = rho * rho
-            g = rho * (1.0 + r2 * (self.k1 + self.k2 * r2)) - rho_d
-            dg = 1.0 + r2 * (3.0 * self.k1 + 5.0 * self.k2 * r2)
+            g = rho * (1.0 + r2 * self._radial(r2)) - rho_d
+            dg = 1.0 + r2 * (3.0 * self.k1 + 5.0 * self.k2 * r2 if self.k2 else 3.0 * self.k1)
             step = g / dg
             rho = rho - step
             if not np.any(np.abs(step) > tolerance):
@@ -117,7 +122,7 @@ class CameraModel:
         uv = vectors[..., :2] / np.where(z > 0, z, np.nan)
         sq = uv * uv
         r2 = sq[..., 0] + sq[..., 1]
-        uv *= (1.0 + r2 * (self.k1 + self.k2 * r2))[..., None]     # distorted
+        uv *= (1.0 + r2 * self._radial(r2))[..., None]     # distorted
         uv *= self.f_px
         uv += (self.cx, self.cy)
         return uv
