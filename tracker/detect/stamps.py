@@ -322,8 +322,9 @@ class StampDetector:
         at_x = (origins[win, 0] + px).astype(np.float64)
         at_y = (origins[win, 1] + py).astype(np.float64)
         blend = 2.0 * r if self.cfg.blend_radius_px is None else float(self.cfg.blend_radius_px)
-        close = np.square(at_x[:, None] - at_x[None, :]) + np.square(at_y[:, None]
-                                                                      - at_y[None, :])
+        # whole pixels: exact in any order
+        close = np.square(at_x[:, None] - at_x[None, :])
+        close += np.square(at_y[:, None] - at_y[None, :])
         blended = np.count_nonzero(close <= blend * blend, axis=1) > 1   # itself and another
         fit = np.flatnonzero(~blended)
         if len(fit):
@@ -336,10 +337,9 @@ class StampDetector:
             x[pair], y[pair] = self._windowed(signal[pair].reshape(-1, side, side), x[pair],
                                               y[pair])
         grid = signal.reshape(m, side, side)
-        ex = self.stamp_axis[None, :] - x[:, None]
-        ey = self.stamp_axis[None, :] - y[:, None]
+        ex, ey = e = self.stamp_axis - np.array((x, y))[:, :, None]     # (2, m, side)
         inv = -0.5 / self.expected_size
-        gx, gy = np.exp(inv * ex * ex), np.exp(inv * ey * ey)
+        gx, gy = np.exp(inv * e * e)
         # the Gaussian weight is separable: profiles weighted along one axis, then moments
         cols = np.einsum("nij,ni->nj", grid, gy) * gx          # (m, side) over columns
         rows = np.einsum("nij,nj->ni", grid, gx) * gy          # (m, side) over rows
@@ -359,8 +359,7 @@ class StampDetector:
         sharp = judged & (~spot | (width < self.cfg.sharp_size_ratio) | track)
         self.counters["sharp_spots"] = int(np.count_nonzero(sharp))
         self.counters["cosmic_rays"] = self.counters["sharp_spots"]
-        fx = origins[win, 0] + px + x
-        fy = origins[win, 1] + py + y
+        fx, fy = at_x + x, at_y + y
         keep = np.flatnonzero(~sharp)
         keep = keep[np.argsort(-snr[keep], kind="stable")]
         keep = keep[~later_within(fx[keep], fy[keep], _SAME_STAR_PX)]
