@@ -108,7 +108,7 @@ class TrailFit:
         """
         out = np.array(xy, dtype=np.float64, copy=True)
         length = np.hypot(smear[:, 0], smear[:, 1])
-        rows = np.flatnonzero(length >= self.min_length)
+        rows = (length >= self.min_length).nonzero()[0]
         if len(rows) == 0:
             return out
         s = self.sigma
@@ -116,7 +116,7 @@ class TrailFit:
         half = int(math.ceil(float(along_half.max())))         # the box holding every band
         h, w = image.shape
         ixy = np.rint(out[rows]).astype(np.intp)               # (x, y) the box's middle pixel
-        inside = np.all((ixy >= half) & (ixy < (w - half, h - half)), axis=1)
+        inside = ((ixy >= half) & (ixy < (w - half, h - half))).all(axis=1)
         rows, ixy, along_half = rows[inside], ixy[inside], along_half[inside]
         if len(rows) == 0:
             return out
@@ -143,15 +143,16 @@ class TrailFit:
         light = np.maximum(data, 0.0)
         centre = np.zeros((2, n))                # from the start, along and across, sigma
         centre[0] = np.einsum("ij,ij->i", light, a_band) / np.maximum(light.sum(axis=1), 1e-30)
-        ends = (np.stack((length[rows], -length[rows]))[:, :, None] / (2.0 * s)).astype(_REAL)
+        ends = (np.array((length[rows], -length[rows]))[:, :, None] / (2.0 * s)).astype(_REAL)
         jac = np.empty((n, 3, shape[1]), _REAL)
-        for _ in range(self.iterations):
-            at = centre.astype(_REAL)
-            centre += self._step(jac, data, a_band - at[0][:, None],
-                                 b_band - at[1][:, None], ends)
-        across = np.stack((-u[:, 1], u[:, 0]), axis=1)          # b's direction
+        with np.errstate(divide="ignore", invalid="ignore"):    # (the steps' divisions)
+            for _ in range(self.iterations):
+                at = centre.astype(_REAL)
+                centre += self._step(jac, data, a_band - at[0][:, None],
+                                     b_band - at[1][:, None], ends)
+        across = np.array((-u[:, 1], u[:, 0])).T                 # b's direction
         c = start + s * (centre[0][:, None] * u + centre[1][:, None] * across)
-        ok = np.all(np.isfinite(c), axis=1) & np.all(np.abs(c - start) <= self.max_shift, axis=1)
+        ok = np.isfinite(c).all(axis=1) & (np.abs(c - start) <= self.max_shift).all(axis=1)
         out[rows[ok]] = c[ok]
         return out
 
@@ -181,15 +182,14 @@ class TrailFit:
         # the entries' pairs side by side, (a, b) or (aa, ab, bb): each of the few calls
         # does the arithmetic of two or three
         mf = m[:, 2:8:3]                                       # (M_aF, M_bF)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            flux = jd[:, 2] / m[:, 8]
-            r = jd[:, :2] - flux[:, None] * mf                   # (ra, rb)
-            s = m[:, _SCHUR_M] - mf[:, _SCHUR_I] * mf[:, _SCHUR_J] / m[:, 8:9]   # saa, sab, sbb
-            sab = s[:, 1:2]
-            scale = flux * (s[:, 0] * s[:, 2] - sab[:, 0] * sab[:, 0])
-            step = s[:, _SCHUR_STEP] * r - sab * r[:, ::-1]  # sbb ra - sab rb, saa rb - sab ra
-            step[:, 0] *= _ALONG
-            step = (step / scale[:, None]).T
+        flux = jd[:, 2] / m[:, 8]            # (the caller ignores division by zero: no step)
+        r = jd[:, :2] - flux[:, None] * mf                       # (ra, rb)
+        s = m[:, _SCHUR_M] - mf[:, _SCHUR_I] * mf[:, _SCHUR_J] / m[:, 8:9]   # saa, sab, sbb
+        sab = s[:, 1:2]
+        scale = flux * (s[:, 0] * s[:, 2] - sab[:, 0] * sab[:, 0])
+        step = s[:, _SCHUR_STEP] * r - sab * r[:, ::-1]      # sbb ra - sab rb, saa rb - sab ra
+        step[:, 0] *= _ALONG
+        step = (step / scale[:, None]).T
         step[:, ~(np.abs(scale) > 1e-30)] = 0.0                # singular (or NaN): no step
         return step
 
