@@ -63,9 +63,10 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
     else:
         z = 0.5 * np.sqrt(1.0 - r00 - r11 + r22)
         q = [(r10 - r01) / (4 * z), (r02 + r20) / (4 * z), (r12 + r21) / (4 * z), z]
-    q = np.asarray(q)
-    q /= np.linalg.norm(q)
-    return -q if q[0] < 0 else q
+    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[0] < 0:
+        norm = -norm
+    return np.array(q) / norm
 
 
 def matrix_from_quat(q: np.ndarray) -> np.ndarray:
@@ -84,12 +85,13 @@ def radec_roll_from_matrix(R: np.ndarray) -> tuple[float, float, float]:
     Roll is measured at the boresight (+Z). For a camera with its principal
     point at the image centre that is the image centre of the convention.
     """
-    R = np.asarray(R, dtype=np.float64)
-    boresight = R[2]  # the camera +Z axis expressed in ICRS
-    ra, dec = vector_to_radec(boresight)
-    north_cam = R[:, 2]  # ICRS +Z (celestial pole) in the camera frame
-    roll = np.mod(np.arctan2(-north_cam[0], -north_cam[1]), 2 * np.pi)
-    return float(ra), float(dec), float(roll)
+    # Python floats (vector_to_radec's arithmetic on one vector): numpy's calls on scalars
+    # cost more than their work
+    (_, _, n0), (_, _, n1), (x, y, z) = np.asarray(R, dtype=np.float64).tolist()
+    ra = math.atan2(y, x) % (2.0 * math.pi)      # the boresight, camera +Z, in ICRS
+    dec = math.atan2(z, math.hypot(x, y))
+    roll = math.atan2(-n0, -n1) % (2.0 * math.pi)   # ICRS +Z (the pole) in the camera frame
+    return ra, dec, roll
 
 
 def matrix_from_radec_roll(ra: float, dec: float, roll: float) -> np.ndarray:
@@ -174,12 +176,10 @@ def attitude_covariance(obs: np.ndarray, sigma: float | np.ndarray) -> np.ndarra
 
 def rotation_vector(R: np.ndarray) -> np.ndarray:
     """Rotation vector (axis times angle, radians) of the rotation matrix R."""
-    R = np.asarray(R, dtype=np.float64)
-    q = quat_from_matrix(R)
-    s = np.linalg.norm(q[1:])
-    if s < 1e-12:
-        return 2.0 * q[1:]
-    return q[1:] * (2.0 * np.arctan2(s, q[0]) / s)
+    w, x, y, z = quat_from_matrix(R).tolist()
+    s = math.sqrt(x * x + y * y + z * z)
+    scale = 2.0 if s < 1e-12 else 2.0 * math.atan2(s, w) / s
+    return np.array((x * scale, y * scale, z * scale))
 
 
 def matrix_from_rotation_vector(theta: np.ndarray) -> np.ndarray:
