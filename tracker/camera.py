@@ -104,10 +104,10 @@ class CameraModel:
             dg = 1.0 + r2 * (3.0 * self.k1 + 5.0 * self.k2 * r2 if self.k2 else 3.0 * self.k1)
             step = g / dg
             rho = rho - step
-            if not np.any(np.abs(step) > tolerance):
+            if not (np.abs(step) > tolerance).any():
                 break   # converged (quadratically)
         # rho / rho_d, 1 at the centre (rho_d = 0)
-        ratio = np.divide(rho, rho_d, out=np.ones_like(rho), where=rho_d > 0)
+        ratio = np.divide(rho, rho_d, out=np.ones(rho.shape), where=rho_d > 0)
         return distorted * ratio[..., None]
 
     def vector_to_pixel(self, vectors: np.ndarray) -> np.ndarray:
@@ -133,8 +133,9 @@ class CameraModel:
         uv = (pixels - (self.cx, self.cy)) / self.f_px
         if self.k1 != 0.0 or self.k2 != 0.0:
             uv = self._undistort(uv)
-        vec = np.ones(uv.shape[:-1] + (3,))
+        vec = np.empty(uv.shape[:-1] + (3,))
         vec[..., :2] = uv
+        vec[..., 2] = 1.0
         sq = vec * vec
         vec /= np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])[..., None]
         return vec

@@ -197,9 +197,11 @@ def _median(values: np.ndarray) -> float:
     few dozen values."""
     n = len(values)
     k = n // 2
+    middle = values.copy()
     if n % 2:
-        return float(np.partition(values, k)[k])
-    middle = np.partition(values, (k - 1, k))
+        middle.partition(k)
+        return float(middle[k])
+    middle.partition((k - 1, k))
     return float((middle[k - 1] + middle[k]) / 2.0)
 
 
