@@ -12,6 +12,8 @@ Angles are radians unless a name says ``_deg``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = [
@@ -61,9 +63,10 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
     else:
         z = 0.5 * np.sqrt(1.0 - r00 - r11 + r22)
         q = [(r10 - r01) / (4 * z), (r02 + r20) / (4 * z), (r12 + r21) / (4 * z), z]
-    q = np.asarray(q)
-    q /= np.linalg.norm(q)
-    return -q if q[0] < 0 else q
+    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[0] < 0:
+        norm = -norm
+    return np.array(q) / norm
 
 
 def matrix_from_quat(q: np.ndarray) -> np.ndarray:
@@ -82,12 +85,13 @@ def radec_roll_from_matrix(R: np.ndarray) -> tuple[float, float, float]:
     Roll is measured at the boresight (+Z). For a camera with its principal
     point at the image centre that is the image centre of the convention.
     """
-    R = np.asarray(R, dtype=np.float64)
-    boresight = R[2]  # the camera +Z axis expressed in ICRS
-    ra, dec = vector_to_radec(boresight)
-    north_cam = R[:, 2]  # ICRS +Z (celestial pole) in the camera frame
-    roll = np.mod(np.arctan2(-north_cam[0], -north_cam[1]), 2 * np.pi)
-    return float(ra), float(dec), float(roll)
+    # Python floats (vector_to_radec's arithmetic on one vector): numpy's calls on scalars
+    # cost more than their work
+    (_, _, n0), (_, _, n1), (x, y, z) = np.asarray(R, dtype=np.float64).tolist()
+    ra = math.atan2(y, x) % (2.0 * math.pi)      # the boresight, camera +Z, in ICRS
+    dec = math.atan2(z, math.hypot(x, y))
+    roll = math.atan2(-n0, -n1) % (2.0 * math.pi)   # ICRS +Z (the pole) in the camera frame
+    return ra, dec, roll
 
 
 def matrix_from_radec_roll(ra: float, dec: float, roll: float) -> np.ndarray:
@@ -172,24 +176,27 @@ def attitude_covariance(obs: np.ndarray, sigma: float | np.ndarray) -> np.ndarra
 
 def rotation_vector(R: np.ndarray) -> np.ndarray:
     """Rotation vector (axis times angle, radians) of the rotation matrix R."""
-    R = np.asarray(R, dtype=np.float64)
-    q = quat_from_matrix(R)
-    s = np.linalg.norm(q[1:])
-    if s < 1e-12:
-        return 2.0 * q[1:]
-    return q[1:] * (2.0 * np.arctan2(s, q[0]) / s)
+    w, x, y, z = quat_from_matrix(R).tolist()
+    s = math.sqrt(x * x + y * y + z * z)
+    scale = 2.0 if s < 1e-12 else 2.0 * math.atan2(s, w) / s
+    return np.array((x * scale, y * scale, z * scale))
 
 
 def matrix_from_rotation_vector(theta: np.ndarray) -> np.ndarray:
     """Rotation matrix exp([theta]x) of a rotation vector (radians), Rodrigues' formula."""
-    theta = np.asarray(theta, dtype=np.float64)
-    angle = float(np.linalg.norm(theta))
-    K = np.array([[0.0, -theta[2], theta[1]], [theta[2], 0.0, -theta[0]],
-                  [-theta[1], theta[0], 0.0]])
+    # in Python floats: a 3-vector's nine numpy calls cost more than its arithmetic
+    # (tracking calls it every frame); K K = theta theta^T - angle^2 I
+    x, y, z = (float(t) for t in theta)
+    angle2 = x * x + y * y + z * z
+    angle = math.sqrt(angle2)
     if angle < 1e-12:
-        return np.eye(3) + K
-    return (np.eye(3) + np.sin(angle) / angle * K
-            + (1.0 - np.cos(angle)) / angle ** 2 * (K @ K))
+        a, b = 1.0, 0.0
+    else:
+        a, b = math.sin(angle) / angle, (1.0 - math.cos(angle)) / angle2
+    c = 1.0 - b * angle2
+    return np.array([[c + b * x * x, b * x * y - a * z, b * x * z + a * y],
+                     [b * x * y + a * z, c + b * y * y, b * y * z - a * x],
+                     [b * x * z - a * y, b * y * z + a * x, c + b * z * z]])
 
 
 def attitude_error(R_est: np.ndarray, R_true: np.ndarray) -> tuple[float, float]:

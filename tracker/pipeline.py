@@ -282,10 +282,11 @@ class Pipeline:
         longest = self._solver.max_smear_px(t_ns, exposure_s)
         if longest is None or longest < self._trail.min_length:
             return stars                  # no star of the frame trails far enough
-        xy = np.stack((stars["x"], stars["y"]), axis=1)
+        xy = np.empty((len(stars), 2))
+        xy[:, 0], xy[:, 1] = stars["x"], stars["y"]
         smear = self._solver.smear_px(xy, t_ns, exposure_s)
-        if smear is None or not np.any(np.hypot(smear[:, 0], smear[:, 1])
-                                       >= self._trail.min_length):
+        if smear is None or not (np.hypot(smear[:, 0], smear[:, 1])
+                                 >= self._trail.min_length).any():
             return stars
         t0 = time.perf_counter_ns()
         fitted = self._trail.refine(image, xy, smear)

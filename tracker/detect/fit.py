@@ -69,7 +69,7 @@ def _adjugate_index() -> tuple[np.ndarray, ...]:
             (j + 1) % 3 * 3 + (i + 2) % 3, (j + 2) % 3 * 3 + (i + 1) % 3)
 
 
-_ADJ = _adjugate_index()
+_ADJ = np.array(_adjugate_index())   # (4, 9)
 
 
 class PixelGaussianFit:
@@ -158,13 +158,12 @@ class PixelGaussianFit:
         normal[:, 0, 2] = normal[:, 2, 0] = f * by_fy2[:, 1]
         normal[:, 1, 2] = normal[:, 2, 1] = f * by_fydy[:, 1]
         cols, rb = self._columns(m, 2)
-        np.copyto(cols[..., 0], dfx)
-        np.copyto(cols[..., 1], fx)
+        cols[..., 0], cols[..., 1] = dfx, fx
         np.matmul(v["resid"], cols, out=rb)             # (R dfx, R fx)
         by_fy = np.einsum("ij,ijk->ik", fy, rb)
         np.multiply(by_fy[:, 0], f, out=grad[:, 0])
         np.multiply(np.einsum("ij,ij->i", dfy, rb[..., 1]), f, out=grad[:, 1])
-        np.copyto(grad[:, 2], by_fy[:, 1])
+        grad[:, 2] = by_fy[:, 1]
 
     def run(self, m: int, signal: np.ndarray, raw: np.ndarray, x: np.ndarray, y: np.ndarray,
             noise: np.ndarray, saturation: float | np.ndarray, max_shift: float,
@@ -232,7 +231,7 @@ class PixelGaussianFit:
         np.minimum(at, self._last, out=at)
         node = at.astype(np.intp)
         np.subtract(at, node, out=at)                        # the way to the next node
-        rows = np.take(self._table, node, axis=0)            # (2, m, side, 4)
+        rows = self._table.take(node, axis=0)                # (2, m, side, 4)
         frac = rows[..., 0] + at * rows[..., 1]
         dfrac = rows[..., 2] + at * rows[..., 3]
         return frac[0], frac[1], dfrac[0], dfrac[1]
@@ -243,11 +242,11 @@ class PixelGaussianFit:
         by the adjugate (zero for a star whose matrix is not positive definite), or None
         when no star's is."""
         flat = normal.reshape(len(normal), 9)
-        a, b, c, d = (np.take(flat, index, axis=1) for index in _ADJ)
+        a, b, c, d = flat.take(_ADJ, axis=1).transpose(1, 0, 2)     # (4, m, 9)
         adj = a * b - c * d
         det = np.einsum("ij,ij->i", flat[:, :3], adj[:, :3])
         good = np.isfinite(det) & (det > 0)
         if not good.any():
             return None
-        scale = np.divide(1.0, det, out=np.zeros_like(det), where=good)
+        scale = np.divide(1.0, det, out=np.zeros(len(det)), where=good)
         return np.einsum("nij,nj->in", adj.reshape(-1, 3, 3), grad) * scale

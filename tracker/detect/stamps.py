@@ -228,7 +228,7 @@ class StampDetector:
         inside = np.abs(ring) <= clip[:, None]
         np.multiply(ring, ring, out=ring)
         ring *= inside
-        var = (ring.sum(axis=1) / np.maximum(np.count_nonzero(inside, axis=1), 1)
+        var = (ring.sum(axis=1) / np.maximum(inside.sum(axis=1), 1)
                / _CLIPPED_VARIANCE)
         np.sqrt(var, out=self.noise)
         np.maximum(self.noise, QUANTISATION_NOISE_ADU, out=self.noise)
@@ -242,7 +242,7 @@ class StampDetector:
         limit = (self.k_sigma * self.filter_gain) * self.noise
         np.greater(filt, limit[None, :, None], out=self.above)
         np.logical_and(self.peak, self.above, out=self.peak)
-        hits = np.flatnonzero(self.peak)
+        hits = self.peak.ravel().nonzero()[0]
         py, rest = np.divmod(hits, n * c)
         win, px = np.divmod(rest, c)
         # the rows and columns a peak may take in its window: ``margin`` from an inner
@@ -322,24 +322,24 @@ class StampDetector:
         at_x = (origins[win, 0] + px).astype(np.float64)
         at_y = (origins[win, 1] + py).astype(np.float64)
         blend = 2.0 * r if self.cfg.blend_radius_px is None else float(self.cfg.blend_radius_px)
-        close = np.square(at_x[:, None] - at_x[None, :]) + np.square(at_y[:, None]
-                                                                      - at_y[None, :])
-        blended = np.count_nonzero(close <= blend * blend, axis=1) > 1   # itself and another
-        fit = np.flatnonzero(~blended)
+        # whole pixels: exact in any order
+        close = np.square(at_x[:, None] - at_x[None, :])
+        close += np.square(at_y[:, None] - at_y[None, :])
+        blended = (close <= blend * blend).sum(axis=1) > 1   # itself and another
+        fit = (~blended).nonzero()[0]
         if len(fit):
             fx, fy = x[fit], y[fit]
             self.fit.run(len(fit), signal[fit], raw[fit], fx, fy, noise[fit], self.saturation,
                          _MAX_SHIFT_PX)
             x[fit], y[fit] = fx, fy
-        pair = np.flatnonzero(blended)
+        pair = blended.nonzero()[0]
         if len(pair):
             x[pair], y[pair] = self._windowed(signal[pair].reshape(-1, side, side), x[pair],
                                               y[pair])
         grid = signal.reshape(m, side, side)
-        ex = self.stamp_axis[None, :] - x[:, None]
-        ey = self.stamp_axis[None, :] - y[:, None]
+        ex, ey = e = self.stamp_axis - np.array((x, y))[:, :, None]     # (2, m, side)
         inv = -0.5 / self.expected_size
-        gx, gy = np.exp(inv * ex * ex), np.exp(inv * ey * ey)
+        gx, gy = np.exp(inv * e * e)
         # the Gaussian weight is separable: profiles weighted along one axis, then moments
         cols = np.einsum("nij,ni->nj", grid, gy) * gx          # (m, side) over columns
         rows = np.einsum("nij,nj->ni", grid, gx) * gy          # (m, side) over rows
@@ -359,9 +359,8 @@ class StampDetector:
         sharp = judged & (~spot | (width < self.cfg.sharp_size_ratio) | track)
         self.counters["sharp_spots"] = int(np.count_nonzero(sharp))
         self.counters["cosmic_rays"] = self.counters["sharp_spots"]
-        fx = origins[win, 0] + px + x
-        fy = origins[win, 1] + py + y
-        keep = np.flatnonzero(~sharp)
+        fx, fy = at_x + x, at_y + y
+        keep = (~sharp).nonzero()[0]
         keep = keep[np.argsort(-snr[keep], kind="stable")]
         keep = keep[~later_within(fx[keep], fy[keep], _SAME_STAR_PX)]
         self.counters["left_out"] = max(0, len(keep) - self.table.capacity)
@@ -373,7 +372,7 @@ class StampDetector:
         s["flux"][:count] = kept.sum(axis=1)
         s["peak"][:count] = kept[:, self.centre9].max(axis=1)
         s["snr"][:count] = snr[keep]
-        s["npix"][:count] = np.count_nonzero(kept > 3.0 * noise[keep, None], axis=1)
+        s["npix"][:count] = (kept > 3.0 * noise[keep, None]).sum(axis=1)
         flags = np.zeros(count, np.uint16)
         flags[raw[keep[:, None], self.centre9].max(axis=1) >= self.saturation] |= \
             StarFlag.SATURATED
@@ -388,7 +387,7 @@ class StampDetector:
         gain 2; ``_BLEND_STEPS`` steps) of stamps ``grid`` (m, side, side) from (x, y) px
         off their centres."""
         inv = -0.5 / self.expected_size
-        pos = np.stack((x, y))                                   # (2, m)
+        pos = np.array((x, y))                                   # (2, m)
         weight = np.empty((len(x), 2, len(self.stamp_axis)))     # g_y and g_y e_y by row
         for _ in range(_BLEND_STEPS):
             e = self.stamp_axis - pos[:, :, None]                # (2, m, side): x, y
@@ -396,9 +395,9 @@ class StampDetector:
             weight[:, 0], weight[:, 1] = g[1], g[1] * e[1]
             cols = np.einsum("nij,nai->naj", grid, weight)       # (m, 2, side)
             sums = np.einsum("naj,nj->an", cols, g[0])           # (total, sum g e_y)
-            step = np.stack((np.einsum("nj,nj->n", cols[:, 0], g[0] * e[0]), sums[1]))
+            step = np.array((np.einsum("nj,nj->n", cols[:, 0], g[0] * e[0]), sums[1]))
             step *= 2.0 / np.where(sums[0] > 0, sums[0], np.inf)   # no light: no step
-            pos = np.clip(pos + step, -_MAX_SHIFT_PX, _MAX_SHIFT_PX)
+            pos = np.minimum(np.maximum(pos + step, -_MAX_SHIFT_PX), _MAX_SHIFT_PX)
         return pos[0], pos[1]
 
     def _vertex(self, win: np.ndarray, py: np.ndarray,
@@ -409,6 +408,8 @@ class StampDetector:
         near = self.filt.ravel()[at[:, None] + self.cross].astype(np.float64)  # (m, 5)
         lo, hi = near[:, 1::2], near[:, 2::2]        # (left, up), (right, down)
         curve = lo - 2.0 * near[:, :1] + hi
-        offset = np.where(curve < 0, 0.5 * (lo - hi) / np.where(curve < 0, curve, -1.0), 0.0)
-        np.clip(offset, -0.5, 0.5, out=offset)
+        bent = curve < 0
+        offset = np.where(bent, 0.5 * (lo - hi) / np.where(bent, curve, -1.0), 0.0)
+        np.maximum(offset, -0.5, out=offset)
+        np.minimum(offset, 0.5, out=offset)
         return offset[:, 0], offset[:, 1]

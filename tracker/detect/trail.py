@@ -43,6 +43,10 @@ _REAL = np.float32   # the band's arrays: the model to 1e-7, its sums over the b
                      # the centres within 1e-5 px of float64's, the steps twice as fast
 _TINY = 1e-9   # a unit vector's component below this is taken as this (no division by 0)
 _ALONG = -math.sqrt(math.pi / 2.0)   # the along column's scale: dg / dda = that column / _ALONG
+# the Schur complement's entries (saa, sab, sbb) in the flat normal matrix and in (M_aF, M_bF),
+# and the entries (sbb, saa) the step's numerators take
+_SCHUR_M, _SCHUR_I, _SCHUR_J = np.array([0, 1, 4]), np.array([0, 0, 1]), np.array([0, 1, 1])
+_SCHUR_STEP = np.array([2, 0])
 
 
 def normal_cdf(z: np.ndarray) -> np.ndarray:
@@ -95,6 +99,7 @@ class TrailFit:
         self.min_length = MIN_TRAIL_SIGMAS * self.sigma     # shorter trails are not fitted
         self.iterations = int(iterations)
         self.max_shift = float(max_shift)
+        self._rim_side, self._rim_index = 0, np.zeros(0, np.intp)
 
     def refine(self, image: np.ndarray, xy: np.ndarray, smear: np.ndarray) -> np.ndarray:
         """Centres (n, 2) of the stars near ``xy`` (n, 2) trailed by ``smear`` (n, 2), px.
@@ -103,30 +108,29 @@ class TrailFit:
         """
         out = np.array(xy, dtype=np.float64, copy=True)
         length = np.hypot(smear[:, 0], smear[:, 1])
-        rows = np.flatnonzero(length >= self.min_length)
+        rows = (length >= self.min_length).nonzero()[0]
         if len(rows) == 0:
             return out
         s = self.sigma
         along_half = length[rows] / 2.0 + 3.0 * s + 2.0         # the band, px from the start
         half = int(math.ceil(float(along_half.max())))         # the box holding every band
         h, w = image.shape
-        ix, iy = np.rint(out[rows, 0]).astype(np.intp), np.rint(out[rows, 1]).astype(np.intp)
-        inside = (ix >= half) & (iy >= half) & (ix < w - half) & (iy < h - half)
-        rows, ix, iy, along_half = rows[inside], ix[inside], iy[inside], along_half[inside]
+        ixy = np.rint(out[rows]).astype(np.intp)               # (x, y) the box's middle pixel
+        inside = ((ixy >= half) & (ixy < (w - half, h - half))).all(axis=1)
+        rows, ixy, along_half = rows[inside], ixy[inside], along_half[inside]
         if len(rows) == 0:
             return out
         n = len(rows)
         u = smear[rows] / length[rows, None]                     # unit vector along the trail
         start = out[rows]
-        grid = np.arange(-half, half + 1)
-        box = window_view(image, 2 * half + 1)[iy - half, ix - half]   # (n, side, side)
-        rim = np.concatenate((box[:, 0], box[:, -1], box[:, 1:-1, 0], box[:, 1:-1, -1]), axis=1)
+        side = 2 * half + 1
+        box = window_view(image, side)[ixy[:, 1] - half, ixy[:, 0] - half]   # (n, side, side)
+        rim = box.reshape(n, -1)[:, self._rim(side)]
         mid = rim.shape[1] // 2                                  # an even count: two middles
         sky = np.sort(rim, axis=1)[:, mid - 1:mid + 1].mean(axis=1)
         # pixel - start along the box's columns and rows, sigma; a pixel's place along and
         # across the trail is a column's share plus a row's
-        dx = (grid[None, :] - (start[:, 0] - ix)[:, None]) / s   # (n, side)
-        dy = (grid[None, :] - (start[:, 1] - iy)[:, None]) / s
+        dx, dy = ((np.arange(-half, half + 1) - (start - ixy)[:, :, None]) / s).transpose(1, 0, 2)
         ux, uy = u[:, 0:1], u[:, 1:2]
         a = (dx * ux)[:, None, :] + (dy * uy)[:, :, None]        # (n, side, side)
         b = (dy * ux)[:, :, None] - (dx * uy)[:, None, :]
@@ -139,17 +143,27 @@ class TrailFit:
         light = np.maximum(data, 0.0)
         centre = np.zeros((2, n))                # from the start, along and across, sigma
         centre[0] = np.einsum("ij,ij->i", light, a_band) / np.maximum(light.sum(axis=1), 1e-30)
-        ends = (np.stack((length[rows], -length[rows]))[:, :, None] / (2.0 * s)).astype(_REAL)
+        ends = (np.array((length[rows], -length[rows]))[:, :, None] / (2.0 * s)).astype(_REAL)
         jac = np.empty((n, 3, shape[1]), _REAL)
-        for _ in range(self.iterations):
-            at = centre.astype(_REAL)
-            centre += self._step(jac, data, a_band - at[0][:, None],
-                                 b_band - at[1][:, None], ends)
-        across = np.stack((-u[:, 1], u[:, 0]), axis=1)          # b's direction
+        with np.errstate(divide="ignore", invalid="ignore"):    # (the steps' divisions)
+            for _ in range(self.iterations):
+                at = centre.astype(_REAL)
+                centre += self._step(jac, data, a_band - at[0][:, None],
+                                     b_band - at[1][:, None], ends)
+        across = np.array((-u[:, 1], u[:, 0])).T                 # b's direction
         c = start + s * (centre[0][:, None] * u + centre[1][:, None] * across)
-        ok = np.all(np.isfinite(c), axis=1) & np.all(np.abs(c - start) <= self.max_shift, axis=1)
+        ok = np.isfinite(c).all(axis=1) & (np.abs(c - start) <= self.max_shift).all(axis=1)
         out[rows[ok]] = c[ok]
         return out
+
+    def _rim(self, side: int) -> np.ndarray:
+        """Flat indices of a square box's border pixels (any order: the sky is their median),
+        kept for the last side."""
+        if self._rim_side != side:
+            ring = np.ones((side, side), bool)
+            ring[1:-1, 1:-1] = False
+            self._rim_index, self._rim_side = np.flatnonzero(ring), side
+        return self._rim_index
 
     def _step(self, jac: np.ndarray, data: np.ndarray, a: np.ndarray, b: np.ndarray,
               ends: np.ndarray) -> np.ndarray:
@@ -163,17 +177,19 @@ class TrailFit:
         entry a product of per-star sums, no batched solve.
         """
         self._model(a, b, ends, jac)
-        m = np.einsum("npk,nqk->npq", jac, jac)                # (n, 3, 3) over (ca, cb, F)
+        m = np.einsum("npk,nqk->npq", jac, jac).reshape(-1, 9)   # (n, 3 x 3) over (ca, cb, F)
         jd = np.einsum("npk,nk->np", jac, data)                # (n, 3)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            flux = jd[:, 2] / m[:, 2, 2]
-            ra = jd[:, 0] - flux * m[:, 0, 2]
-            rb = jd[:, 1] - flux * m[:, 1, 2]
-            saa = m[:, 0, 0] - m[:, 0, 2] ** 2 / m[:, 2, 2]
-            sab = m[:, 0, 1] - m[:, 0, 2] * m[:, 1, 2] / m[:, 2, 2]
-            sbb = m[:, 1, 1] - m[:, 1, 2] ** 2 / m[:, 2, 2]
-            scale = flux * (saa * sbb - sab * sab)
-            step = np.stack(((sbb * ra - sab * rb) * _ALONG, saa * rb - sab * ra)) / scale
+        # the entries' pairs side by side, (a, b) or (aa, ab, bb): each of the few calls
+        # does the arithmetic of two or three
+        mf = m[:, 2:8:3]                                       # (M_aF, M_bF)
+        flux = jd[:, 2] / m[:, 8]            # (the caller ignores division by zero: no step)
+        r = jd[:, :2] - flux[:, None] * mf                       # (ra, rb)
+        s = m[:, _SCHUR_M] - mf[:, _SCHUR_I] * mf[:, _SCHUR_J] / m[:, 8:9]   # saa, sab, sbb
+        sab = s[:, 1:2]
+        scale = flux * (s[:, 0] * s[:, 2] - sab[:, 0] * sab[:, 0])
+        step = s[:, _SCHUR_STEP] * r - sab * r[:, ::-1]      # sbb ra - sab rb, saa rb - sab ra
+        step[:, 0] *= _ALONG
+        step = (step / scale[:, None]).T
         step[:, ~(np.abs(scale) > 1e-30)] = 0.0                # singular (or NaN): no step
         return step
 

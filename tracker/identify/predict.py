@@ -118,8 +118,8 @@ def informative(xy: np.ndarray, snr: np.ndarray, centre: tuple[float, float],
     rho2 = np.square(xy[:, 0] - centre[0]) + np.square(xy[:, 1] - centre[1])
     keep = np.zeros(m, bool)
     for info in (w, w * rho2):
-        order = np.argsort(-info, kind="stable")
-        total = np.cumsum(info[order])
-        k = min(m, int(np.searchsorted(total, share * total[-1])) + 1)
+        order = (-info).argsort(kind="stable")    # (the arrays' methods: numpy's wrappers
+        total = info[order].cumsum()              # cost more than these calls' work)
+        k = min(m, int(total.searchsorted(share * total[-1])) + 1)
         keep[order[:k]] = True
     return np.flatnonzero(keep)

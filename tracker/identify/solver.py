@@ -197,9 +197,11 @@ def _median(values: np.ndarray) -> float:
     few dozen values."""
     n = len(values)
     k = n // 2
+    middle = values.copy()
     if n % 2:
-        return float(np.partition(values, k)[k])
-    middle = np.partition(values, (k - 1, k))
+        middle.partition(k)
+        return float(middle[k])
+    middle.partition((k - 1, k))
     return float((middle[k - 1] + middle[k]) / 2.0)
 
 
@@ -210,7 +212,7 @@ def _not_duplicate(xy: np.ndarray, radius: float) -> np.ndarray:
     drop = np.zeros(len(xy), dtype=bool)
     for k in range(1, len(xy)):
         near_x = xs[k:] - xs[:-k] <= radius
-        if not np.any(near_x):
+        if not near_x.any():
             break
         close = near_x & (np.hypot(xs[k:] - xs[:-k], ys[k:] - ys[:-k]) <= radius)
         first, second = order[:-k][close], order[k:][close]
@@ -339,9 +341,10 @@ class Solver:
         good = np.isfinite(x) & np.isfinite(y) & np.isfinite(flux)
         if "flags" in names:   # nebulae, comets, lit terrain: not catalogue stars
             good &= (np.asarray(stars["flags"]) & StarFlag.EXTENDED) == 0
-        idx = np.flatnonzero(good)
+        idx = good.nonzero()[0]
         idx = idx[np.argsort(-flux[idx], kind="stable")]
-        xy = np.stack((x[idx], y[idx]), axis=1)
+        xy = np.empty((len(idx), 2))
+        xy[:, 0], xy[:, 1] = x[idx], y[idx]
         if len(idx) > 1 and self.cfg.duplicate_px > 0:
             keep = _not_duplicate(xy, self.cfg.duplicate_px)
             idx, xy = idx[keep], xy[keep]
@@ -572,7 +575,7 @@ class Solver:
         if self._snr is None:
             return None
         snr = self._snr[ok]
-        if not np.all(snr > 0):                       # (NaN fails it too)
+        if not (snr > 0).all():                       # (NaN fails it too)
             return None
         return 1.0 / (self.cfg.centroid_sigma_px ** 2 + np.square(_CENTROID_SNR_PX / snr))
 
@@ -648,7 +651,7 @@ class Solver:
         """
         if flux is None or np.count_nonzero(ok) < 4:
             return
-        rows = np.flatnonzero(ok)
+        rows = ok.nonzero()[0]
         inst = -2.5 * np.log10(np.maximum(flux[rows], 1e-30))
         diff = self._cat_mag[cat_idx[which[rows]]] - inst
         off = np.abs(diff - _median(diff)) > self.cfg.mag_tolerance
@@ -677,12 +680,14 @@ class Solver:
         against the attitude's correction (a fraction of a pixel to a few),
         so a star's nearest prediction does not change with it.
         """
-        rows = np.flatnonzero(pairs >= 0)
+        rows = (pairs >= 0).nonzero()[0]
         rotated = ref @ R.T
         pix = camera.vector_to_pixel(rotated)
         d = np.hypot(pix[:, 0] - xy[rows, 0], pix[:, 1] - xy[rows, 1])
-        which = np.full(len(xy), -1, np.int64)
-        dist = np.full(len(xy), np.inf)
+        which = np.empty(len(xy), np.int64)
+        which.fill(-1)
+        dist = np.empty(len(xy))
+        dist.fill(np.inf)
         near = d <= radius
         which[rows[near]], dist[rows[near]] = pairs[rows[near]], d[near]
         ok = which >= 0
@@ -793,7 +798,7 @@ class Solver:
         else:
             self._rate = self._rate_P = None
         self._last_R, self._last_t, self._last_P = R, t_ns, P
-        unmatched = np.flatnonzero(~ok)[:self.cfg.track_window_unknown]
+        unmatched = (~ok).nonzero()[0][:self.cfg.track_window_unknown]
         self._unknown = observed[unmatched] @ R
         self._timer.stop()
         return Solution(

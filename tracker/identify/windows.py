@@ -90,8 +90,8 @@ class WindowPlanner:
             return None
         n_star = min(len(prediction.xy), self.capacity - self.sweep)
         o = self.origins
-        o[:n_star] = np.clip(np.rint(prediction.xy[:n_star] - 0.5 * (cell - 1)), 0,
-                             (self.width - cell, self.height - cell))
+        o[:n_star] = np.minimum(np.maximum(np.rint(prediction.xy[:n_star] - 0.5 * (cell - 1)),
+                                           0), (self.width - cell, self.height - cell))
         self._sweep(cell, n_star)
         return WindowPlan(cell=cell, origins=o, stars=n_star,
                           area_px=float(self.capacity * cell * cell))
