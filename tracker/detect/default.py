@@ -39,7 +39,9 @@ handled, sigma 3.5 px):
    particle's hit would leave its wings as a spot). With no measurement the
    frame keeps the estimate of earlier frames (or the configured start),
    and ``psf_stars`` says 0; three agreeing stars, too few to measure it,
-   still bound it from below for the lone impulses.
+   still bound it from below for the lone impulses. The impulses' second
+   pass and the lone ones' test after the search are timed as
+   ``impulse_refine``, not as ``psf`` or ``centroid``.
 5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
    float32 copy (OpenCV's Gaussian is fastest on float32). The background is
    not subtracted from the whole image: the threshold image carries it
@@ -537,9 +539,11 @@ class DefaultDetector:
                 binned = measured is not None
         self.psf = self.psf_tracker.update(measured)
         self._configure(self.psf.sigma_px)
+        timer.start("impulse_refine")
         self._refine_impulses(self.psf.stars > 0 and not binned)
         count = self._search()
         if binned or bound is not None:
+            timer.start("impulse_refine")
             count = self._retest_lone(count, self.psf_sigma_used if binned else bound)
         timer.stop()
         reason = (Reason.CROWDED if self.peaks.crowded
