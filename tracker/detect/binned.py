@@ -5,10 +5,9 @@ only a few noise sigmas above the sky while the matched filter sees it at
 SNR 20 (a 3 px PSF's peak holds 1/57 of its light). The PSF meter
 (tracker.detect.psf) then finds too few bright peaks to measure the PSF,
 and without the PSF the matched filter cannot be chosen. Binning the frame
-4 x 4 (the mean of each block, rounded to whole ADU: two OpenCV passes of
-2 x 2 means over the frame's float copy, exact in float32, together half
-the time of one 4 x 4 pass over the integers) adds up most of such a star's
-light against a quarter of the pixel noise: 3-4 times the peak's SNR for a 2-3 px PSF,
+4 x 4 (the mean of each block, one OpenCV pass over the frame into an
+image a sixteenth its size) adds up most of such a star's light against
+a quarter of the pixel noise: 3-4 times the peak's SNR for a 2-3 px PSF,
 without knowing the PSF. The bins that are the brightest within two bins
 (8 px) around, at least ``min_snr`` binned noise sigmas above the
 background, brightest first, are the candidates (one per star: a wide
@@ -52,7 +51,6 @@ class BinnedPeaks:
         self.layout = layout
         self.shape = (max(1, layout.rows // BIN_PX), max(1, layout.cols // BIN_PX))
         self.binned = np.zeros(self.shape, np.uint16)
-        self.half = np.zeros((2 * self.shape[0], 2 * self.shape[1]), np.float32)  # 2 x 2
         self.values = np.zeros(self.shape, np.float32)
         self.before = np.zeros(self.shape, np.uint16)   # the binned means' maxima around
         self.after = np.zeros(self.shape, np.uint16)
@@ -68,25 +66,19 @@ class BinnedPeaks:
         dy, dx = np.mgrid[0:BIN_PX, 0:BIN_PX]
         self.block_offsets = (dy.ravel() * layout.stride + dx.ravel()).astype(np.intp)
 
-    def find(self, work_pad: np.ndarray, work_float: np.ndarray, level: np.ndarray,
+    def find(self, work_pad: np.ndarray, work: np.ndarray, level: np.ndarray,
              noise: np.ndarray, min_snr: float) -> int:
-        """Candidates of the frame in ``work_pad`` (uint16, padded) into ``start[:n]`` and
-        ``brightest[:n]``, brightest first; returns n.
+        """Candidates of the frame in ``work`` (uint16, the interior view of ``work_pad``)
+        into ``start[:n]`` and ``brightest[:n]``, brightest first; returns n.
 
-        ``work_float``: the same frame as float32 (frame shape); ``level`` and
-        ``noise``: the background stage's grids (ADU per pixel).
+        ``level`` and ``noise``: the background stage's grids (ADU per pixel).
         """
         rows, cols = self.shape
-        if work_float.shape[0] < BIN_PX or work_float.shape[1] < BIN_PX:
+        if work.shape[0] < BIN_PX or work.shape[1] < BIN_PX:
             return 0
-        # 2 x 2 means of whole ADU are quarters, their 2 x 2 means sixteenths: exact in
-        # float32 (under 2^20 sixteenths), then rounded half to even like the integers'
-        # own 4 x 4 area mean
-        cv2.resize(work_float[:rows * BIN_PX, :cols * BIN_PX], (2 * cols, 2 * rows),
-                   dst=self.half, interpolation=cv2.INTER_AREA)
-        cv2.resize(self.half, (cols, rows), dst=self.values, interpolation=cv2.INTER_AREA)
-        np.rint(self.values, out=self.values)
-        np.copyto(self.binned, self.values, casting="unsafe")
+        cv2.resize(work[:rows * BIN_PX, :cols * BIN_PX], (cols, rows), dst=self.binned,
+                   interpolation=cv2.INTER_AREA)
+        np.copyto(self.values, self.binned)
         cv2.resize(level, (cols, rows), dst=self.level, interpolation=cv2.INTER_LINEAR)
         cv2.resize(noise, (cols, rows), dst=self.noise, interpolation=cv2.INTER_LINEAR)
         np.multiply(self.noise, self.noise, out=self.noise)

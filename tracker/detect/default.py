@@ -673,8 +673,7 @@ class DefaultDetector:
         not measure the PSF but say the frame's stars are no sharper than the sharpest
         of them: that sigma is the bound, for the impulses' second pass.
         """
-        self._float_wait()   # the binned means are read from the filter's float copy
-        n = self.binned.find(self.input.padded, self.work_float, self.level, self.noise,
+        n = self.binned.find(self.input.padded, self.input.work, self.level, self.noise,
                              _BINNED_SNR)
         if n == 0:
             return None, None
