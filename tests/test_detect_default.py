@@ -389,21 +389,33 @@ def test_multiplicative_noise_finds_faint_speckled_stars_on_a_black_sky():
 
 
 def test_psf_constants_kept_per_step_equal_those_computed_afresh():
-    """A PSF that moves away and back reuses its step's constants (tracker.detect.sigma_steps):
-    the same thresholds, contrasts and border gains as a detector started at that PSF."""
+    """Every PSF step's constants are computed at construction (tracker.detect.sigma_steps)
+    and none on a frame: a PSF that moves from step to step reads the table, whose
+    thresholds, contrasts, roughness and border gains are those computed afresh for the
+    step, and the same as a detector started at that PSF uses."""
     shape = (200, 240)
     moving = make_detector(CFG, shape, 10)
-    names = ("filter_gain", "peak_threshold", "impulse_contrast", "impulse_ring",
-             "star_roughness")
-    for sigma in (0.7, 2.9, 1.6, 0.7):
+    assert moving.steps.known.all()
+    afresh = moving._step_constants
+
+    def computed_on_a_frame(step):
+        raise AssertionError(f"step {step} computed after construction")
+
+    moving._step_constants = computed_on_a_frame
+    names = ("filter_gain", "peak_threshold", "impulse_contrast", "impulse_ring")
+    for sigma in (0.7, 2.9, 1.6, 0.7, 0.45, 3.5):
         moving._configure(sigma)
+        scalars, gains = afresh(moving._sigma_step)
+        assert [getattr(moving, name) for name in names] == list(scalars[:4])
+        assert moving.star_roughness.values() == tuple(scalars[4:])
         fresh = make_detector(dataclasses.replace(CFG, psf_sigma_px=sigma), shape, 10)
         assert moving.psf_sigma_used == fresh.psf_sigma_used
-        for name in names:
+        for name in (*names, "star_roughness"):
             assert getattr(moving, name) == getattr(fresh, name), name
-        for ours, theirs in zip(moving.edge_gain, fresh.edge_gain, strict=True):
+        for ours, theirs, computed in zip(moving.edge_gain, fresh.edge_gain, gains,
+                                          strict=True):
             assert ours.dtype == np.float32 and np.array_equal(ours, theirs)
-    assert np.count_nonzero(moving.steps.known) == 4   # 1.2 (the start), 0.7, 2.9, 1.6
+            assert np.array_equal(ours, computed)
 
 
 def test_salt_on_a_star_core_is_repaired_in_a_salt_and_pepper_frame():

@@ -39,7 +39,9 @@ handled, sigma 3.5 px):
    particle's hit would leave its wings as a spot). With no measurement the
    frame keeps the estimate of earlier frames (or the configured start),
    and ``psf_stars`` says 0; three agreeing stars, too few to measure it,
-   still bound it from below for the lone impulses.
+   still bound it from below for the lone impulses. The impulses' second
+   pass and the lone ones' test after the search are timed as
+   ``impulse_refine``, not as ``psf`` or ``centroid``.
 5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
    float32 copy (OpenCV's Gaussian is fastest on float32). The background is
    not subtracted from the whole image: the threshold image carries it
@@ -378,6 +380,7 @@ class DefaultDetector:
         self.steps = SigmaSteps(_sigma_step_of(SIGMA_MIN_PX), _sigma_step_of(SIGMA_MAX_PX),
                                 4 + len(fields(StarRoughness)),
                                 _kernel_half(SIGMA_MAX_PX))
+        self.steps.fill(self._step_constants)
         self._configure(cfg.psf_sigma_px)
 
     def _configure(self, sigma_px: float) -> None:
@@ -412,8 +415,7 @@ class DefaultDetector:
             self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
         self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
         self.surroundings.configure(int(math.ceil(_SKY_RING_SIGMAS * sigma)))
-        scalars, self.edge_gain = self.steps.get(
-            step, lambda: self._step_constants(sigma_px, kernel))
+        scalars, self.edge_gain = self.steps.get(step, lambda: self._step_constants(step))
         self.psf_filter = (kernel, scalars[0], scalars[1], self.edge_gain)
         self._filter_key = None
         self._set_filter(False)
@@ -467,18 +469,18 @@ class DefaultDetector:
         self.filter_gain, self.peak_threshold = gain, threshold
         self._edge_gains(*edge)
 
-    def _step_constants(self, sigma_px: float,
-                        kernel: np.ndarray) -> tuple[tuple, tuple[np.ndarray, np.ndarray]]:
-        """The PSF's constants for ``_configure`` (PSF sigma ``sigma_px``, matched filter
-        ``kernel``; the centroider configured for it): (filter gain, Gaussian peak
-        threshold, impulse contrast, impulse ring, then the StarRoughness values),
-        (edge gains)."""
+    def _step_constants(self, step: int) -> tuple[tuple, tuple[np.ndarray, np.ndarray]]:
+        """The PSF's constants for ``_configure`` at sigma step ``step``: (filter gain,
+        Gaussian peak threshold, impulse contrast, impulse ring, then the StarRoughness
+        values of its centroid window), (edge gains)."""
+        sigma_px = math.exp(step * _SIGMA_STEP)
+        kernel = self._gaussian_kernel(sigma_px)
         # filtered / pixel noise for white noise: sqrt of the 2-D kernel's sum of squares
         filter_gain = float(np.sum(kernel ** 2))
         peak_threshold = gaussian_peak_threshold(
             self.cfg.false_alarms_per_frame, self.layout.rows * self.layout.cols, kernel)
         impulse_contrast, impulse_ring = _impulse_cut(sigma_px)
-        roughness = StarRoughness.of(self.centroider.radius, sigma_px)
+        roughness = StarRoughness.of(_window_radius(sigma_px), sigma_px)
         return ((filter_gain, peak_threshold, impulse_contrast, impulse_ring,
                  *roughness.values()),
                 _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols))
@@ -537,9 +539,11 @@ class DefaultDetector:
                 binned = measured is not None
         self.psf = self.psf_tracker.update(measured)
         self._configure(self.psf.sigma_px)
+        timer.start("impulse_refine")
         self._refine_impulses(self.psf.stars > 0 and not binned)
         count = self._search()
         if binned or bound is not None:
+            timer.start("impulse_refine")
             count = self._retest_lone(count, self.psf_sigma_used if binned else bound)
         timer.stop()
         reason = (Reason.CROWDED if self.peaks.crowded

@@ -181,6 +181,15 @@ class ImpulseFilter:
         self.stamp_reads = np.zeros(9 * self.capacity, np.int32)
         self._n = 0
         self.neighbours = np.zeros((self.capacity, 8), np.uint8)
+        # how many of each pixel's eight neighbours lie beyond the frame (_frame_ring): 3 on
+        # its outer rows and columns, 5 at its corners, read by one gather, not worked out
+        # from each candidate's row and column
+        rows = np.arange(layout.full_shape[0]) - layout.pad
+        cols = np.arange(layout.stride) - layout.pad
+        self.beyond = np.add.outer(((rows == 0) | (rows == layout.rows - 1)).astype(np.uint8),
+                                   ((cols == 0) | (cols == layout.cols - 1)).astype(np.uint8))
+        np.multiply(self.beyond, 3, out=self.beyond)
+        self.beyond[self.beyond == 6] = 5
         self.any_before = np.zeros(self.capacity, np.uint8)
         self.any_after = np.zeros(self.capacity, np.uint8)
         self.counts = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0}
@@ -378,14 +387,12 @@ class ImpulseFilter:
         the rest beyond, and read as a lone hot pixel whose eighth neighbours were
         dark).
         """
-        rows, cols = self.layout.frame_position(idx)
-        across = ((rows == 0) | (rows == self.layout.rows - 1)).astype(np.int8) + (
-            (cols == 0) | (cols == self.layout.cols - 1))
-        at = np.flatnonzero(across)
+        beyond = np.take(self.beyond.ravel(), idx, mode="clip")
+        at = np.flatnonzero(beyond)
         if len(at) == 0:
             return
         # one edge: 3 of 8 neighbours beyond it; a corner: 5
-        beyond = np.where(across[at] == 1, 3.0, 5.0)
+        beyond = beyond[at].astype(np.float64)
         around[at] += beyond * b[at]
         needed[at] *= (8.0 - beyond) / 8.0
 
