@@ -4,7 +4,7 @@ On the lunar surface particle hits saturating on glare, glare and crescent
 fragments and sources cut by the frame's edge rank among the brightest
 sources. The detector flags most of them (saturated, elongated, edge);
 lost in space draws its patterns from the clean stars first
-(tracker.identify.lost.pattern_stars), so they cost no pattern. Each test
+(tracker.identify.lost.clean_first), so they cost no pattern. Each test
 also solves the same list with the flags cleared (brightness order, as
 before): it must fail, or the test would not show anything.
 """
@@ -19,7 +19,7 @@ from tracker.attitude import attitude_error
 from tracker.config import IdentifyConfig
 from tracker.detect.result import StarFlag
 from tracker.identify import make_solver
-from tracker.identify.lost import DOUBTFUL, pattern_stars
+from tracker.identify.lost import DOUBTFUL, clean_first
 
 ARCSEC = math.radians(1 / 3600)
 _KINDS = (StarFlag.SATURATED, StarFlag.ELONGATED, StarFlag.EDGE,
@@ -112,11 +112,28 @@ def test_a_flagged_real_star_is_still_matched():
     assert sol.hip[first] == truth[first]
 
 
-def test_pattern_stars_takes_clean_stars_first_and_fills_with_doubtful_ones():
+def test_clean_first_takes_clean_stars_first_and_fills_with_doubtful_ones():
     flags = np.array([StarFlag.SATURATED, 0, StarFlag.EDGE, 0, StarFlag.BLENDED, 0,
                       StarFlag.ELONGATED], dtype=np.uint8)
-    np.testing.assert_array_equal(pattern_stars(7, 4, flags), [1, 3, 4, 5])
-    np.testing.assert_array_equal(pattern_stars(7, 6, flags), [1, 3, 4, 5, 0, 2])
-    np.testing.assert_array_equal(pattern_stars(5, 12, flags), [1, 3, 4, 0, 2])
-    np.testing.assert_array_equal(pattern_stars(7, 5, None), np.arange(5))
+    np.testing.assert_array_equal(clean_first(7, 4, flags), [1, 3, 4, 5])
+    np.testing.assert_array_equal(clean_first(7, 6, flags), [1, 3, 4, 5, 0, 2])
+    np.testing.assert_array_equal(clean_first(5, 12, flags), [1, 3, 4, 0, 2])
+    np.testing.assert_array_equal(clean_first(7, 5, None), np.arange(5))
     assert not StarFlag.BLENDED & DOUBTFUL
+
+
+def test_verification_tests_the_clean_stars_first():
+    """36 flagged false stars at ranks 4-39: the 40 brightest (identify.verify_stars)
+    hold four real stars, too few to verify any pattern; the 40 clean-first hold them all.
+    """
+    cam = camera(8.0)
+    solver = make_solver(IdentifyConfig(focal_search=0.0), cam, catalogue())
+    rng = np.random.default_rng(7)
+    for _ in range(4):
+        R = random_rotation(rng)
+        stars, truth = _with_false(cam, R, rng, np.arange(4, 40))
+        assert np.count_nonzero(truth[:40]) == 4
+        solver.reset()
+        _check(solver.solve(stars, 0), R, truth)
+        solver.reset()
+        assert not solver.solve(_cleared(stars), 0).ok

@@ -3,7 +3,7 @@
 The brightest image stars are taken four at a time in a fixed order
 (tracker.identify.patterns.pattern_order); stars the detector flagged as
 doubtful (``DOUBTFUL``: saturated, elongated, at the frame's edge) only
-after the others (:func:`pattern_stars`). For each four:
+after the others (:func:`clean_first`). For each four:
 
 1. their pixel positions become unit vectors with the focal length at both
    ends and the centre of the prior [f_low, f_high]; the code (sorted edge
@@ -40,7 +40,7 @@ from tracker.identify.database import BoundDatabase
 from tracker.identify.patterns import EDGES, code_bounds, codes, edge_angles, match_stars
 from tracker.identify.patterns import pattern_order as _pattern_order
 
-__all__ = ["WorkBudget", "Hypothesis", "PatternSearch", "DOUBTFUL", "pattern_stars"]
+__all__ = ["WorkBudget", "Hypothesis", "PatternSearch", "DOUBTFUL", "clean_first"]
 
 # Detector flags that make a source a poor pattern star. On the lunar frames of
 # tracker bench detect (8 and 16 mm, 10 frames each, the 20 brightest sources of
@@ -118,7 +118,7 @@ class PatternSearch:
                    skip_f: tuple[float, float] | None = None,
                    flags: np.ndarray | None = None) -> Iterator[Hypothesis]:
         """Hypotheses from ``n_stars`` of ``xy`` (m, 2), sorted brightest first: the
-        brightest, those ``flags`` (m,) marks doubtful last (:func:`pattern_stars`).
+        brightest, those ``flags`` (m,) marks doubtful last (:func:`clean_first`).
 
         ``camera`` gives the principal point and distortion; its focal length
         is replaced by f_low, the centre and f_high (px). Stops when the
@@ -127,7 +127,7 @@ class PatternSearch:
         not yielded (already tried by a narrower search). A hypothesis'
         ``image`` indexes ``xy``.
         """
-        pick = pattern_stars(len(xy), n_stars, flags)
+        pick = clean_first(len(xy), n_stars, flags)
         n = len(pick)
         if n < 4:
             return
@@ -190,18 +190,19 @@ class PatternSearch:
         return box[ok], stars[ok], f_est[ok], shares
 
 
-def pattern_stars(count: int, n: int, flags: np.ndarray | None = None) -> np.ndarray:
-    """Indices of the (at most) ``n`` of ``count`` stars patterns are drawn from, in
-    trying order.
+def clean_first(count: int, n: int, flags: np.ndarray | None = None) -> np.ndarray:
+    """Indices of (at most) ``n`` of ``count`` stars, in the order lost in space uses them.
 
     The stars are sorted brightest first; ``flags`` (count,) are the
     detector's (tracker.detect.result.StarFlag; None: the ``n`` brightest).
     The brightest stars without a ``DOUBTFUL`` flag come first, brightest
     first; doubtful stars (the brightest of them first) only fill the list
-    when fewer than ``n`` stars are clean. A few bright false stars the
-    detector flagged then cost no pattern at all, where in brightness order
-    every pattern holding one of them is wasted and real stars behind them
-    may be left out of the ``n``.
+    when fewer than ``n`` stars are clean. Pattern stars are drawn this way
+    (a few bright false stars the detector flagged then cost no pattern, where
+    in brightness order every pattern holding one of them is wasted and real
+    stars behind them may be left out of the ``n``), and so are the stars a
+    hypothesis is tested on (the pattern stars lead them): the choice depends
+    on no hypothesis, so the false-match odds (tracker.identify.verify) hold.
     """
     if flags is None:
         return np.arange(min(n, count))
