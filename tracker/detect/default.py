@@ -50,7 +50,10 @@ handled, sigma 3.5 px):
    moved to the same tail probability for the frame's own noise
    distribution (tracker.detect.threshold: a saddlepoint of its background
    pixels' histogram; Cornish-Fisher from the skewness when too few tiles
-   are free of stars or neighbouring pixels are correlated). Where the sky's
+   are free of stars or neighbouring pixels are correlated). Where an integer
+   sky is flat to within its rounding (no noise the lattice sees, e.g. an 8-bit
+   sky without noise) the threshold is that of the sparse noise such a sky may
+   hide, not of white rounding noise. Where the sky's
    own noise reaches full scale (within 4 of its sigmas: 8-bit noise of a
    third of full scale), the filter is 1.5 times the PSF's width, for the
    saturated stars that are then most of those at the threshold.
@@ -136,7 +139,12 @@ from tracker.detect.significance import shot_noise_snr
 from tracker.detect.slabs import SlabRunner
 from tracker.detect.stars import StarTable
 from tracker.detect.surroundings import Surroundings, across_a_line, sky_noise_model
-from tracker.detect.threshold import NoiseTail, gaussian_peak_threshold, skewed_threshold
+from tracker.detect.threshold import (
+    NoiseTail,
+    constant_sky_rate,
+    gaussian_peak_threshold,
+    skewed_threshold,
+)
 from tracker.detect.windowed import WindowedCentroider
 from tracker.timing import StageTimer
 
@@ -194,6 +202,7 @@ _BODY_TOP = 0.9                # ... or whose 90th percentile is that much above
 _STEP_OVER_SLOPE = 4.0         # ... and 4 x as far as its level above its darker part
 _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its tail modelled
 _CLIPPED_NOISE_WIDTH = 1.5     # where noise clips at full scale, the filter this much wider
+_RATE_STEP = math.log(1.05)    # a flat sky's rate of pixels above its level, in steps of 5 %
 
 
 def effective_sigma(psf_sigma_px: float) -> float:
@@ -288,6 +297,8 @@ class DefaultDetector:
         self.noise = np.zeros(grid_shape, np.float32)        # raw pixel noise, ADU
         self.residual = np.zeros(grid_shape, np.float32)     # filtered level left, ADU
         self.noise_f = np.zeros(grid_shape, np.float32)      # filtered noise, ADU
+        self.constant_levels: dict = {}   # NoiseTail.constant_sky per filter, u and rate
+        self.sky_levels = np.zeros(grid_shape, np.float64)   # _constant_sky's, ADU
         self.float_grid = np.zeros(grid_shape, np.float32)
         self.int_grid = np.zeros(grid_shape, np.uint16)
         self.bg_pad, self.bg = layout.buffer(np.float32)
@@ -651,6 +662,7 @@ class DefaultDetector:
                    QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=True,
                    dark_side=self.dark_side if self.dark_side.any() else None)
         self._tail_threshold()
+        self._constant_sky()
         self._make_threshold(1.0)
         timer.start("peaks")
         n = self.peaks.find(self.filt_pad, self.filt, self.threshold, self.bg_pad,
@@ -882,15 +894,68 @@ class DefaultDetector:
         """
         u = (self.peak_threshold if self.cfg.threshold_sigma is None
              else float(self.cfg.threshold_sigma))
+        self.threshold_u = u
         skewness = self.grid.skewness()
         k = None
         if skewness > _TAIL_SKEWNESS:   # noise near Gaussian needs no histogram
-            if self._tail_kernel is not self.kernel:
-                self.tail.configure(self.kernel)
-                self._tail_kernel = self.kernel
+            self._configure_tail()
             self.tail.sample(self.input.padded, self.level, self.noise)
             k = self.tail.threshold(u, self.noise_f, self.filter_gain)
         self.threshold_k = max(u, k) if k is not None else skewed_threshold(u, skewness)
+        self.skewed = skewness > _TAIL_SKEWNESS
+
+    def _configure_tail(self) -> None:
+        if self._tail_kernel is not self.kernel:
+            self.tail.configure(self.kernel)
+            self._tail_kernel = self.kernel
+
+    def _constant_sky(self) -> None:
+        """Where the sky is flat to within its rounding, its threshold from the noise it
+        may have, not from rounding noise that is not there.
+
+        A tile of an integer frame whose sky's pixels nearly all read its level (a
+        noiseless 8-bit sky such as the seed's glare model away from the glare, or
+        sparse photon counts on a black one) measures no noise, and its filtered
+        noise sits at the floor of white rounding noise, 1/12 ADU^2 a pixel: k times
+        that floor asks a star for about five pixels one ADU above the sky. Its
+        rounding is a constant the level holds; the noise it may have reads one
+        above the level at a rate bounded by its 3x3 neighbourhood's lattice
+        samples (tracker.detect.background.BackgroundGrid.above_nearby,
+        tracker.detect.threshold.constant_sky_rate), and the false-alarm budget's
+        tail probability for that sparse noise (NoiseTail.constant_sky) is the
+        threshold where it is below the floor's: the filtered noise becomes that
+        level over k, where the tile's own measurement is not above the floor. A
+        frame whose filtered background is skewed has noise its lattice sees (sparse
+        photon counts of one, two or more ADU), its tail modelled from that
+        (:meth:`_tail_threshold`), and keeps its threshold.
+        """
+        if self.skewed:   # a tail the filtered background shows, modelled as such
+            return
+        floor = np.float32(QUANTISATION_NOISE_ADU * self.filter_gain)
+        at_floor = self.noise_f <= floor
+        if not at_floor.any():
+            return
+        above, samples = self.grid.above_nearby(), self.grid.samples_near
+        # the frame's own rate over the tiles at the floor: a bound from one tile's
+        # neighbourhood is low by chance in some of a thousand
+        frame_rate = (float(np.sum(self.grid.above[at_floor]))
+                      / (np.count_nonzero(at_floor) * self.grid.samples.shape[-1]))
+        rate = np.maximum(constant_sky_rate(above, samples), frame_rate)
+        # rates rounded up to steps of 5 %, each step's level computed once
+        steps = np.ceil(np.log(rate[at_floor]) / _RATE_STEP).astype(np.int64)
+        levels = self.sky_levels
+        levels.fill(np.inf)
+        for step in np.unique(steps):
+            key = (self._filter_key, self.threshold_u, int(step))
+            level = self.constant_levels.get(key)
+            if level is None:
+                self._configure_tail()
+                level = self.tail.constant_sky(self.threshold_u, math.exp(step * _RATE_STEP),
+                                               self.filter_gain)
+                self.constant_levels[key] = level
+            levels.ravel()[np.flatnonzero(at_floor)[steps == step]] = level
+        lower = levels < self.threshold_k * floor
+        self.noise_f[lower] = levels[lower] / self.threshold_k
 
     def _make_threshold(self, factor: float) -> None:
         """Threshold image: background + level left + factor * threshold_k * noise."""
