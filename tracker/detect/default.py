@@ -61,8 +61,9 @@ handled, sigma 3.5 px):
    profile dips between them (tracker.detect.peaks).
 7. ``centroid``: iterative Gaussian-windowed centroid, then a fit of the
    pixel-integrated PSF for the centre (no pixel-phase bias; saturated
-   pixels censored where light, not the sky's noise, clipped them;
-   tracker.detect.fit), flux, SNR and shape
+   pixels censored where light, not the sky's noise, clipped them; where the
+   sky's noise clips at full scale, saturated stars centred on the peak of
+   the widened filter; tracker.detect.fit), flux, SNR and shape
    (tracker.detect.windowed). Spots much narrower than the PSF, or rougher
    at the pixel scale than a star of their flux (cosmic-ray clusters that
    survived steps 3-4; tracker.detect.roughness), are rejected and counted
@@ -1007,6 +1008,33 @@ class DefaultDetector:
         v["x0"][clipped[wide]] = mean[:, 0]
         v["y0"][clipped[wide]] = mean[:, 1]
 
+    def _centre_on_filter(self, n: int, cand: np.ndarray, v: dict, light: np.ndarray) -> None:
+        """Centre the saturated stars of a frame whose noise clips at full scale on the
+        peak of the search's filtered image, by a parabola through it and its
+        neighbours along each axis.
+
+        There (:meth:`_set_filter`) the filter is the Gaussian of a saturated star's
+        clipped core, and its peak is where that core matches best against every
+        pixel of the window; the fit of the PSF's Gaussian (tracker.detect.fit) has
+        no pixels to leave out (full scale is the noise's as often as the light's)
+        and fits a bell to a flat top. Saturated stars at MF SNR 7-11 under the
+        seed's written Gaussian+Poisson (tests/test_detect_clipped_noise.py): RMS
+        error 1.00 -> 0.55 px, 5 -> 0 of 397 detections over 2 px off.
+        """
+        which = np.flatnonzero((v["raw_peak"][:n] >= self.saturation) & ~light)
+        if len(which) == 0:
+            return
+        at = cand[which]
+        flat = self.filt_pad.ravel()
+        centre = flat[at].astype(np.float64)
+        for key, step in (("x0", 1), ("y0", self.layout.stride)):
+            lo = flat[at - step].astype(np.float64)
+            hi = flat[at + step].astype(np.float64)
+            curve = lo - 2.0 * centre + hi
+            offset = np.divide(0.5 * (lo - hi), curve, out=np.zeros_like(curve),
+                               where=curve < 0)
+            v[key][which] = np.clip(offset, -0.5, 0.5)
+
     def _edge_gains(self, top: np.ndarray, left: np.ndarray) -> None:
         """Spread the filter's noise gains at the first rows (``top``) and columns
         (``left``; the last ones mirror them) over the four border strips they scale."""
@@ -1057,6 +1085,8 @@ class DefaultDetector:
         judge_whole(v, across_x, across_y)
         if self.speckle_fit is None:
             self._centre_plateaus(n, cand, v, light)
+            if self.noise_clips:
+                self._centre_on_filter(n, cand, v, light)
         if self.speckle_fit is not None:  # its likelihood handles saturated stars too
             merged = self.centroider.refine_multiplicative(
                 n, self.speckle_fit, cand, self.delivered_pad, self.bg_pad, level,
