@@ -203,7 +203,9 @@ _BODY_TOP = 0.9                # ... or whose 90th percentile is that much above
 _STEP_OVER_SLOPE = 4.0         # ... and 4 x as far as its level above its darker part
 _TAIL_SKEWNESS = 0.1           # filtered noise more skewed than this has its tail modelled
 _CLIPPED_NOISE_WIDTH = 1.5     # where noise clips at full scale, the filter this much wider
-_RATE_STEP = math.log(1.05)    # a flat sky's rate of pixels above its level, in steps of 5 %
+_RATE_STEP = math.log(1.05)    # a flat sky's rate of pixels above its level, in steps of 5 %,
+_RATE_LOW = 1e-5               # ... from this (a lower rate counts as this)
+_RATE_HIGH = 0.05              # ... to this (a higher one's level is over the floor's)
 
 
 def effective_sigma(psf_sigma_px: float) -> float:
@@ -298,7 +300,11 @@ class DefaultDetector:
         self.noise = np.zeros(grid_shape, np.float32)        # raw pixel noise, ADU
         self.residual = np.zeros(grid_shape, np.float32)     # filtered level left, ADU
         self.noise_f = np.zeros(grid_shape, np.float32)      # filtered noise, ADU
-        self.constant_levels: dict = {}   # NoiseTail.constant_sky per filter, u and rate
+        # NoiseTail.constant_sky per step of the rate, for the filter and u of _rate_key
+        self._low_step = int(math.ceil(math.log(_RATE_LOW) / _RATE_STEP))
+        self.rate_levels = np.full(int(math.ceil(math.log(_RATE_HIGH) / _RATE_STEP))
+                                   - self._low_step + 1, np.nan)
+        self._rate_key = None
         self.sky_levels = np.zeros(grid_shape, np.float64)   # _constant_sky's, ADU
         self.float_grid = np.zeros(grid_shape, np.float32)
         self.int_grid = np.zeros(grid_shape, np.uint16)
@@ -942,19 +948,24 @@ class DefaultDetector:
         frame_rate = (float(np.sum(self.grid.above[at_floor]))
                       / (np.count_nonzero(at_floor) * self.grid.samples.shape[-1]))
         rate = np.maximum(constant_sky_rate(above, samples), frame_rate)
-        # rates rounded up to steps of 5 %, each step's level computed once
-        steps = np.ceil(np.log(rate[at_floor]) / _RATE_STEP).astype(np.int64)
+        # rates rounded up to steps of 5 % from _RATE_LOW (a lower one taken as that),
+        # each step's level computed once per filter; above _RATE_HIGH none is lower
+        # than the floor's
+        steps = np.ceil(np.log(np.maximum(rate[at_floor], _RATE_LOW))
+                        / _RATE_STEP).astype(np.int64) - self._low_step
         levels = self.sky_levels
         levels.fill(np.inf)
-        for step in np.unique(steps):
-            key = (self._filter_key, self.threshold_u, int(step))
-            level = self.constant_levels.get(key)
-            if level is None:
+        table = self.rate_levels
+        if self._rate_key != (self._filter_key, self.threshold_u):
+            self._rate_key = (self._filter_key, self.threshold_u)
+            table.fill(np.nan)
+        for step in np.unique(steps[steps < len(table)]):
+            if np.isnan(table[step]):
                 self._configure_tail()
-                level = self.tail.constant_sky(self.threshold_u, math.exp(step * _RATE_STEP),
-                                               self.filter_gain)
-                self.constant_levels[key] = level
-            levels.ravel()[np.flatnonzero(at_floor)[steps == step]] = level
+                table[step] = self.tail.constant_sky(
+                    self.threshold_u, math.exp((step + self._low_step) * _RATE_STEP),
+                    self.filter_gain)
+            levels.ravel()[np.flatnonzero(at_floor)[steps == step]] = table[step]
         lower = levels < self.threshold_k * floor
         self.noise_f[lower] = levels[lower] / self.threshold_k
 
