@@ -135,6 +135,13 @@ class BackgroundGrid:
         self._third_due = False
         self.spread3 = np.zeros(self.grid_shape, np.float32)  # m2^1.5
         self.star_free = np.zeros(self.grid_shape, np.bool_)
+        self.above = np.zeros(self.grid_shape, np.int32)   # samples above the level
+        self.pooled = np.zeros(self.grid_shape, np.float32)
+        self.above_near = np.zeros(self.grid_shape, np.int32)   # above(), 3x3 summed
+        # lattice samples in each tile's 3x3 neighbourhood (fewer at the grid's border)
+        self.samples_near = cv2.boxFilter(np.full(self.grid_shape, float(m), np.float32), -1,
+                                          (3, 3), normalize=False,
+                                          borderType=cv2.BORDER_CONSTANT).astype(np.int32)
 
         # each tile row's first frame row, and one past its last
         self.row_edges = np.searchsorted(_tile_of(rows, ny, 0, rows), np.arange(ny + 1))
@@ -143,6 +150,18 @@ class BackgroundGrid:
         tile_cols = _tile_of(cols, nx, layout.pad, layout.stride)
         self.tile_index = (tile_rows[:, None] * nx + tile_cols[None, :]).astype(np.int32).ravel()
         self.tile_scratch = np.zeros(int(capacity), np.int32)
+
+    def above_nearby(self) -> np.ndarray:
+        """Lattice samples above their tile's level in each tile's 3x3 neighbourhood, after
+        the last :meth:`stats` of an integer frame (grid shape, int32; of
+        ``samples_near``). On a sky flat to within its rounding they bound how often
+        its pixels read above it (tracker.detect.threshold.constant_sky_rate); a star's
+        light on the lattice only raises the bound."""
+        np.copyto(self.pooled, self.above, casting="unsafe")
+        cv2.boxFilter(self.pooled, -1, (3, 3), dst=self.pooled, normalize=False,
+                      borderType=cv2.BORDER_CONSTANT)
+        np.copyto(self.above_near, self.pooled, casting="unsafe")
+        return self.above_near
 
     def stats(self, padded: np.ndarray, level: np.ndarray, noise: np.ndarray,
               floor: float, upper: bool = False, minus: bool = False,
@@ -189,6 +208,8 @@ class BackgroundGrid:
             values = self.samples
         mean = _integer_mean if lattice and self._exact_sums else _mean
         mean(values[..., m // 4: m - m // 4], self.level_raw)
+        if lattice:
+            np.sum(values > self.level_raw[..., None], axis=-1, out=self.above)
         if dark_side is not None and np.any(dark_side):
             dark = values[dark_side]
             self.level_raw[dark_side] = dark[:, m // 16: 3 * m // 8].mean(axis=-1)

@@ -38,11 +38,22 @@ import numpy as np
 
 from tracker.normal import log_tail
 
-__all__ = ["gaussian_peak_threshold", "skewed_threshold", "NoiseTail"]
+__all__ = ["gaussian_peak_threshold", "skewed_threshold", "NoiseTail", "constant_sky_rate"]
 
 _MAX_CORRELATION = 0.2   # neighbouring pixels more alike than this are not white noise
 _BULK_SIGMAS = 4.0       # the bulk of the noise: within this many sigma of its mean
 _LOPSIDED_BULK = 0.5     # ... is modelled here only when its skewness is beyond this
+_UNSEEN = -math.log(0.05)  # events a Poisson count shows none of with probability 0.05
+
+
+def constant_sky_rate(count, samples):
+    """The largest fraction of a sky's pixels that may read above its level when
+    ``count`` of ``samples`` of its pixels do: the rate at which a Poisson count would
+    be ``count`` or fewer with probability about 0.05 (the count plus 3, the bound for
+    none seen, over the samples; a slight excess for counts above zero).
+    Works on arrays of counts and samples alike.
+    """
+    return (np.asarray(count, np.float64) + _UNSEEN) / np.maximum(samples, 1)
 
 
 def _axis_lambda2(kernel_1d: np.ndarray) -> float:
@@ -221,6 +232,31 @@ class NoiseTail:
         ratio = float(np.median(self.tile_max[~self.excluded]))
         return y * max(0.8, ratio)
 
+
+    def constant_sky(self, u: float, rate: float, gain: float) -> float:
+        """The filtered level above a sky's (ADU) that its noise exceeds with a Gaussian's
+        probability beyond ``u``, when it is flat to within its rounding and its pixels
+        read one ADU above their level at ``rate`` (:func:`constant_sky_rate`), never
+        below it; ``gain``: the filter's white-noise gain (filtered over pixel noise).
+
+        A sky whose lattice samples nearly all read its level has no noise a robust
+        spread can see, and white rounding noise of 1/12 ADU^2 (the floor) would have
+        put a third of them off it: its rounding is a constant the level holds. What
+        noise it may have is this sparse one, of mean ``rate`` and variance
+        rate (1 - rate) ADU^2; the saddlepoint of its filtered sum (:meth:`threshold`,
+        the kernel's weights from :meth:`configure`) at 0.5 % of the pixels lies
+        between three such pixels side by side and four, where the floor asked for
+        five.
+        """
+        f = min(max(float(rate), 1e-9), 0.5)
+        spread = math.sqrt(f * (1.0 - f))
+        x = (np.array([0.0, 1.0]) - f) / spread
+        log_p = np.log([1.0 - f, f])
+        y = _saddlepoint_quantile(x, log_p, self.weights, self.counts,
+                                  float(log_tail(np.array(u))))
+        if y is None:
+            return math.inf
+        return f + y * spread * gain
 
     def _neighbour_correlation(self) -> float:
         """Correlation of horizontally adjacent background pixels in the kept tiles.
