@@ -260,7 +260,8 @@ def _contradicts(few: PsfEstimate, carried: PsfEstimate) -> bool:
     error = math.hypot(few.sigma_error_px, carried.sigma_error_px
                        if math.isfinite(carried.sigma_error_px) else 0.0)
     return (math.log(few.sigma_px / carried.sigma_px) > _STAR_WIDTH
-            and few.sigma_px - carried.sigma_px > _CONTRADICT_SE * error)
+            and few.sigma_px - carried.sigma_px > _CONTRADICT_SE * error
+            and few.ellipticity < _STAR_ELLIPTICITY)   # a slew's trails are no PSF
 
 
 def _reflected_noise_gain(kernel: np.ndarray, rows: int,
