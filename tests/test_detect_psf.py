@@ -224,10 +224,11 @@ def test_faint_stars_of_a_wide_psf_measure_it_and_their_hot_pixels_are_not_stars
 
 def test_too_few_stars_to_measure_the_psf_still_bound_it_for_their_hot_pixels():
     """Ten frames of 4 stars of sigma 2.2 px at matched-filter SNR 20 among 330 hot pixels:
-    too few to measure the PSF (the frame says so: psf_stars 0, the configured 1.2 px
-    kept), but enough to say the frame's stars are no sharper than the sharpest of
-    them, and the lone hot pixels judged against that are no stars: 7 are kept over the
-    ten frames (21 judged against the sharpest PSF handled), and every star found."""
+    too few to measure the PSF, but enough to say the frame's stars are no sharper than
+    the sharpest of them, and the lone hot pixels judged against that are no stars: 7
+    are kept over the ten frames (21 judged against the sharpest PSF handled), and
+    every star found. When 3-4 of them agree, far wider than the configured 1.2 px,
+    the frame is searched with theirs (psf_stars says how many); else 1.2 px is kept."""
     sim = dataclasses.replace(SimConfig(), cosmic_ray_rate_cm2_s=0.0, hot_pixel_fraction=1e-3,
                               hot_pixel_dark_e_s=1500.0)
     on_hot = found = 0
@@ -238,7 +239,11 @@ def test_too_few_stars_to_measure_the_psf_still_bound_it_for_their_hot_pixels():
                               noise_model="realistic", psf_sigma_px=2.2)
         hot = np.array([(s["x"], s["y"]) for s in frame.false_sources])
         result = make_detector(CFG, (600, 600), 10).detect(frame.image)
-        assert result.psf_stars == 0 and result.psf_sigma_px == CFG.psf_sigma_px
+        if result.psf_stars:
+            assert 3 <= result.psf_stars < CFG.psf_min_stars
+            assert result.psf_sigma_px == pytest.approx(2.2, rel=0.15)
+        else:
+            assert result.psf_sigma_px == CFG.psf_sigma_px
         on_hot += int(np.count_nonzero(np.hypot(hot[:, :1] - result.stars["x"][None, :],
                                                 hot[:, 1:] - result.stars["y"][None, :])
                                        .min(axis=0) < 1.0))
@@ -321,3 +326,34 @@ def test_stars_cut_by_the_frames_edge_are_centred_on_the_light_inside_it(sigma):
     found = near < 2.0
     assert found[np.tile(offs, 4) == 1.5].all()
     assert near[found].max() < 0.08, near
+
+
+@pytest.mark.parametrize("flux_e", [4000.0, 20000.0])
+def test_a_focus_jump_to_a_wide_psf_is_seen_on_the_frames_few_stars(flux_e):
+    """A detector that measured sigma 1.0 px on frames of many stars, then frames of 4 stars
+    of sigma 2.8 px (a refocus): too few for a measurement, but the 3-4 that agree on
+    their binned spots contradict the PSF carried over (over 25 % wider, far beyond
+    their error), and the frame is searched with theirs. Against the carried one a wide
+    star's wings fill its sky ring and it was masked as embedded in a body: of the 24
+    stars of six such frames 7 were lost at peak SNR 8.6 (4000 e-; 4 x 4 bins tell),
+    20 at peak SNR 20 (20000 e-; the bright peaks tell); now every one is found."""
+    rng = np.random.default_rng(21)
+    shape = (600, 600)
+    det = make_detector(CFG, shape, 10)
+    for _ in range(2):
+        xs, ys = rng.uniform(30, 570, 60), rng.uniform(30, 570, 60)
+        sharp = render_points(shape, xs, ys, np.full(60, 6000.0), CLEAN, rng,
+                              noise_model="realistic", psf_sigma_px=1.0)
+        assert det.detect(sharp.image).psf_sigma_px == pytest.approx(1.0, rel=0.1)
+    found = 0
+    for _ in range(6):
+        xs, ys = rng.uniform(40, 560, 4), rng.uniform(40, 560, 4)
+        frame = render_points(shape, xs, ys, np.full(4, flux_e), CLEAN, rng,
+                              noise_model="realistic", psf_sigma_px=2.8)
+        result = det.detect(frame.image)
+        d = np.hypot(xs[:, None] - result.stars["x"][None, :],
+                     ys[:, None] - result.stars["y"][None, :])
+        found += int(np.count_nonzero(d.min(axis=1, initial=np.inf) < 1.0))
+        if result.psf_stars:
+            assert result.psf_sigma_px == pytest.approx(2.8, rel=0.15)
+    assert found == 24

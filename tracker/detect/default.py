@@ -39,9 +39,12 @@ handled, sigma 3.5 px):
    particle's hit would leave its wings as a spot). With no measurement the
    frame keeps the estimate of earlier frames (or the configured start),
    and ``psf_stars`` says 0; three agreeing stars, too few to measure it,
-   still bound it from below for the lone impulses. The impulses' second
-   pass and the lone ones' test after the search are timed as
-   ``impulse_refine``, not as ``psf`` or ``centroid``.
+   still bound it from below for the lone impulses, and check the estimate
+   carried over: when they agree on a PSF over 25 % wider, beyond their
+   error (the focus jumped; wider stars are no particles' charge), the frame
+   is searched with theirs (``psf_stars`` 3-4), the estimate carried on
+   unchanged. The impulses' second pass and the lone ones' test after the
+   search are timed as ``impulse_refine``, not as ``psf`` or ``centroid``.
 5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
    float32 copy (OpenCV's Gaussian is fastest on float32). The background is
    not subtracted from the whole image: the threshold image carries it
@@ -131,8 +134,10 @@ from tracker.detect.peaks import PeakFinder
 from tracker.detect.psf import (
     SIGMA_MAX_PX,
     SIGMA_MIN_PX,
+    PsfEstimate,
     PsfMeter,
     PsfTracker,
+    combine_stars,
     pixel_tensor_to_optics,
 )
 from tracker.detect.result import Detections, StarFlag
@@ -191,6 +196,8 @@ _FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
 _BINNED_SNR = 4.0              # too few bright peaks: 4x4 bins this significant measure it,
 _LONE_STARS = 3                # ... or, this many, bound it for the impulses
 _BOUND_AGREE = math.log(1.15)  # ... by the sharpest within 15 % of their PSF
+_CONTRADICT_SE = 3.0           # ... and their PSF replaces an earlier frame's this many
+                               # standard errors and _STAR_WIDTH away from it
 _ELONGATION_SNR = 20.0         # spots this significant tell a trailed frame
 _SKY_RING_SIGMAS = 3.5         # a candidate's surroundings: from this many PSF sigmas ...
 _SKY_RING_WIDTH = 2            # ... outward by this many pixels
@@ -252,6 +259,22 @@ def _kernel_half(psf_sigma_px: float) -> int:
     of a 2.5-sigma one (5x5 instead of 7x7 at sigma 1.2).
     """
     return max(1, int(round(2.0 * effective_sigma(psf_sigma_px))))
+
+
+def _contradicts(few: PsfEstimate, carried: PsfEstimate) -> bool:
+    """Whether a few stars' PSF (``few``) says the one carried from earlier frames is not
+    this frame's: over 25 % wider in sigma (where the shape tests stop taking this
+    frame's stars for stars of the carried PSF: a wide star's wings fill the sky ring
+    and it is masked as embedded), and beyond ``_CONTRADICT_SE`` of their standard
+    errors combined (the configured start has none). Only wider: three or four
+    particle hits of an event agree on a sharp "PSF" as often as stars do (lunar
+    study frames: 0.58 and 0.63 px from hits on frames of 1.3 and 2.5 px, 31 and 33
+    false detections), while a particle's charge is never wider than the optics."""
+    error = math.hypot(few.sigma_error_px, carried.sigma_error_px
+                       if math.isfinite(carried.sigma_error_px) else 0.0)
+    return (math.log(few.sigma_px / carried.sigma_px) > _STAR_WIDTH
+            and few.sigma_px - carried.sigma_px > _CONTRADICT_SE * error
+            and few.ellipticity < _STAR_ELLIPTICITY)   # a slew's trails are no PSF
 
 
 def _reflected_noise_gain(kernel: np.ndarray, rows: int,
@@ -549,16 +572,24 @@ class DefaultDetector:
         self._float_wait = self.filter_slabs.start(self._filter_inputs, self.input.work,
                                                    self.work_float)
         timer.start("psf")
-        measured, bound, binned = None, None, False
+        measured, bound, binned, few = None, None, False, None
         if self.measure_psf:
             measured = self._measure_psf()
+            if self._too_few(measured):
+                few, measured = measured, None
             if measured is None:
-                measured, bound = self._binned_psf()
+                measured, bound, binned_few = self._binned_psf()
                 binned = measured is not None
+                few = binned_few or few
         self.psf = self.psf_tracker.update(measured)
+        if few is not None and _contradicts(few, self.psf):
+            # the estimate of earlier frames (or the configured start) is not this frame's:
+            # its few stars agree on another width (the focus jumped, another camera's
+            # frames); they set this frame's PSF, not the estimate carried on
+            self.psf = few
         self._configure(self.psf.sigma_px)
         timer.start("impulse_refine")
-        self._refine_impulses(self.psf.stars > 0 and not binned)
+        self._refine_impulses(self.psf.stars > 0 and not binned and self.psf is not few)
         count = self._search()
         if binned or bound is not None:
             timer.start("impulse_refine")
@@ -686,16 +717,19 @@ class DefaultDetector:
         """Too few bright peaks for step 4: the PSF measured on the brightest spots of the
         frame binned 4 x 4 (tracker.detect.binned), which a wide PSF's stars reach where
         their peaks do not, through the same tests and meter as the bright peaks.
-        Returns (the measurement or None, a lower bound on the PSF's sigma or None).
+        Returns (the measurement or None, a lower bound on the PSF's sigma or None,
+        a few stars' estimate or None).
 
         Fewer agreeing stars than ``psf_min_stars``, but at least ``_LONE_STARS``, do
         not measure the PSF but say the frame's stars are no sharper than the sharpest
-        of them: that sigma is the bound, for the impulses' second pass.
+        of them: that sigma is the bound, for the impulses' second pass; their
+        estimate is returned third, to check the estimate carried from earlier
+        frames (None otherwise).
         """
         n = self.binned.find(self.input.padded, self.input.work, self.level, self.noise,
                              _BINNED_SNR)
         if n == 0:
-            return None, None
+            return None, None, None
         # on the sky only: lit ground, a body's edge and the tiles beside them hold bright
         # compact spots (boulders, crater rims) wider or sharper than the stars
         self._mark_texture()
@@ -713,12 +747,12 @@ class DefaultDetector:
             if 0 < len(spots) < len(sky):
                 measured = self._meter_binned(spots, min_stars)
         if measured is None:
-            return None, None
+            return None, None, None
         if measured.stars < self.cfg.psf_min_stars:
             sigma = self.psf_meter.last_stars()[1]
             near = sigma[np.abs(np.log(sigma / measured.sigma_px)) <= _BOUND_AGREE]
-            return None, float(near.min()) if len(near) else measured.sigma_px
-        return measured, None
+            return None, float(near.min()) if len(near) else measured.sigma_px, measured
+        return measured, None, None
 
     def _retest_lone(self, count: int, sigma_px: float) -> int:
         """Judge the lone impulse candidates again against a PSF of ``sigma_px``
@@ -806,9 +840,23 @@ class DefaultDetector:
         return self.pool_cand[:k], self.pool_cand_noise[:k]
 
     def _measure_psf(self):
-        """This frame's PSF from its brightest stars (tracker.detect.psf), or None."""
+        """This frame's PSF from its brightest stars (tracker.detect.psf), or None; from
+        fewer than ``psf_min_stars`` (at least ``_LONE_STARS``) an estimate that only
+        checks the one carried from earlier frames (:func:`_contradicts`)."""
         cand, noise = self._bright_peaks()
-        return self._meter(cand, cand, noise)
+        return self._meter(cand, cand, noise, min(_LONE_STARS, self.cfg.psf_min_stars))
+
+    def _too_few(self, estimate) -> bool:
+        """Whether the last meter call's ``estimate`` (at ``_LONE_STARS``) came from fewer
+        agreeing stars than ``psf_min_stars`` would measure the PSF with."""
+        if estimate is None or estimate.stars >= self.cfg.psf_min_stars:
+            return False
+        meter = self.psf_meter
+        n, good = meter.last_n, meter.last_good
+        _, sigma, ellipticity, _ = meter.last_stars()
+        p = meter.per_star
+        return combine_stars(sigma, ellipticity, p["cxx"][:n][good], p["cyy"][:n][good],
+                             p["cxy"][:n][good], self.cfg.psf_min_stars) is None
 
     def _meter(self, cand: np.ndarray, peak: np.ndarray, noise: np.ndarray,
                min_stars: int | None = None):
