@@ -88,10 +88,13 @@ class WindowedCentroider:
         self._f64 = {name: np.zeros(c * k, np.float64)
                      for name in ("s", "ex", "ey", "w", "ws", "t")}
         self._axis_work = np.zeros(6 * c * side, np.float64)
-        names = ("x0", "y0", "sum_ws", "sum_x", "sum_y", "step", "flux", "weighted", "sum_w2",
-                 "mxx", "myy", "mxy", "size", "ellipticity", "snr", "peak", "raw_peak", "npix",
-                 "rough")
-        self.v = {name: np.zeros(int(capacity), np.float64) for name in names}
+        # one row per quantity; x0 and y0, sum_x and sum_y, and step_x and step_y adjacent,
+        # so that one call works on both axes
+        names = ("x0", "y0", "sum_x", "sum_y", "step_x", "step_y", "sum_ws", "flux",
+                 "weighted", "sum_w2", "mxx", "myy", "mxy", "size", "ellipticity", "snr", "peak",
+                 "raw_peak", "npix", "rough")
+        self._per_star = np.zeros((len(names), int(capacity)), np.float64)
+        self.v = dict(zip(names, self._per_star, strict=True))
         self.radius = -1
         self.weight_sigma = 0.0
 
@@ -120,7 +123,7 @@ class WindowedCentroider:
         views["index"] = self._index[: m * k].reshape(m, k)
         views["win"] = self._win[: m * k].reshape(m, k)
         views["bgwin"] = self._bgwin[: m * k].reshape(m, k)
-        views["axis"] = self._axis_work[: 6 * m * self.side].reshape(6, m, self.side)
+        views["axis"] = self._axis_work[: 6 * m * self.side].reshape(3, 2, m, self.side)
         return views
 
     def measure(self, n: int, image_pad: np.ndarray, bg_pad: np.ndarray, cand: np.ndarray,
@@ -144,11 +147,14 @@ class WindowedCentroider:
             part = {name: arr[a:b] for name, arr in v.items()}
             self._measure_chunk(b - a, image_pad, bg_pad, cand[a:b], noise[a:b], level[a:b],
                                 saturation[a:b] if np.ndim(saturation) else saturation,
-                                None if blended is None else blended[a:b], part)
+                                None if blended is None else blended[a:b], part,
+                                self._per_star[:, a:b])
         return v
 
     def _measure_chunk(self, m: int, image_pad, bg_pad, cand, noise, level, saturation,
-                       blended, v: dict) -> None:
+                       blended, v: dict, rows: np.ndarray) -> None:
+        """One chunk of :meth:`measure`: ``v`` views of the chunk's stars, ``rows`` the same
+        as (quantity, star) rows of the per-star table (x0, y0 first)."""
         c = self._chunk_views(m)
         idx, win, bgwin, s = c["index"], c["win"], c["bgwin"], c["s"]
         np.add(cand[:, None], self.offsets[None, :], out=idx)
@@ -157,17 +163,13 @@ class WindowedCentroider:
         np.subtract(win, bgwin, out=s)
         np.subtract(s, level[:, None], out=s)
         x0, y0 = v["x0"], v["y0"]
-        x0.fill(0.0)
-        y0.fill(0.0)
+        xy, sums, step = rows[0:2], rows[2:4], rows[4:6]   # (x0, y0), (sum_x, sum_y), ...
+        xy.fill(0.0)
         for _ in range(self.iterations):
-            self._profiles(m, c, x0, y0, v)
-            step = v["step"]
-            self._shift(v["sum_x"], v["sum_ws"], x0)
-            np.abs(v["sum_x"], out=step)
-            biggest = float(step.max())
-            self._shift(v["sum_y"], v["sum_ws"], y0)
-            np.abs(v["sum_y"], out=step)
-            if max(biggest, float(step.max())) < self.tolerance:
+            self._profiles(m, c, xy, sums, v["sum_ws"])
+            self._shift(sums, v["sum_ws"], xy)
+            np.abs(sums, out=step)
+            if step.max() < self.tolerance:
                 break
         self._weights(c, x0, y0)
         self._photometry(m, c, v, noise)
@@ -265,32 +267,28 @@ class WindowedCentroider:
         np.exp(w, out=w)
         np.multiply(w, c["s"], out=c["ws"])
 
-    def _axis_weights(self, pos: np.ndarray, e: np.ndarray, w: np.ndarray) -> None:
-        """e = axis - pos and w = exp(-e^2 / (2 w^2)), (n, side)."""
-        np.subtract(self.axis[None, :], pos[:, None], out=e)
+    def _profiles(self, m: int, c: dict, xy: np.ndarray, sums: np.ndarray,
+                  sum_ws: np.ndarray) -> None:
+        """sum_ws = sum(W S) and sums = (sum(W S ex), sum(W S ey)) (2, m) for W centred on
+        xy = (x0, y0) (2, m); both axes' offsets, weights and profiles in one call each."""
+        e, w, p = c["axis"]                     # (ex, ey), (wx, wy), (px, py): (2, m, side)
+        np.subtract(self.axis[None, None, :], xy[:, :, None], out=e)
         np.multiply(e, e, out=w)
         np.multiply(w, -self.inv_two_w2, out=w)
         np.exp(w, out=w)
-
-    def _profiles(self, m: int, c: dict, x0: np.ndarray, y0: np.ndarray, v: dict) -> None:
-        """sum_ws = sum(W S), sum_x = sum(W S ex), sum_y = sum(W S ey) for W centred on (x0, y0)."""
-        ex, wx, ey, wy, px, py = c["axis"]
-        self._axis_weights(x0, ex, wx)
-        self._axis_weights(y0, ey, wy)
         s = c["s"].reshape(m, self.side, self.side)  # (star, row = dy, column = dx)
-        np.einsum("nij,ni->nj", s, wy, out=px)  # column profile, weighted along y
-        np.einsum("nij,nj->ni", s, wx, out=py)  # row profile, weighted along x
-        np.multiply(px, wx, out=px)
-        np.multiply(py, wy, out=py)
-        np.sum(px, axis=1, out=v["sum_ws"])
-        np.einsum("ij,ij->i", px, ex, out=v["sum_x"])
-        np.einsum("ij,ij->i", py, ey, out=v["sum_y"])
+        np.einsum("nij,ni->nj", s, w[1], out=p[0])  # column profile, weighted along y
+        np.einsum("nij,nj->ni", s, w[0], out=p[1])  # row profile, weighted along x
+        np.multiply(p, w, out=p)
+        np.sum(p[0], axis=1, out=sum_ws)
+        np.einsum("kij,kij->ki", p, e, out=sums)
 
     def _shift(self, step: np.ndarray, sum_ws: np.ndarray, pos: np.ndarray) -> None:
-        """pos += gain * step / sum_ws, clamped; step (sum(W S e) on entry) holds the move."""
+        """pos += gain * step / sum_ws, clamped (step, pos: (2, m), both axes); step
+        (sum(W S e) on entry) holds the move."""
         # a window whose weighted sum is not positive (noise) keeps its position
         np.divide(step, sum_ws, out=step, where=sum_ws > 0)
-        step[sum_ws <= 0] = 0.0
+        step[:, sum_ws <= 0] = 0.0
         np.multiply(step, self.gain, out=step)
         np.add(pos, step, out=step)
         np.clip(step, -self.max_shift, self.max_shift, out=step)
