@@ -56,8 +56,9 @@ detector over a mosaic of the windows on one frame in
 ``identify.track_lens_every``: tracker.detect.windows).
 
 Fixed memory: the stack, its filtered copy and the star table are made at
-construction for ``cells`` windows of ``cell`` px; the per-peak arrays are
-temporaries of at most ``max_candidates`` rows.
+construction for ``cells`` windows of ``cell`` px, the order of ``max_candidates``
+peaks (which comes before which) once; the per-peak arrays are temporaries of at most
+``max_candidates`` rows.
 """
 
 from __future__ import annotations
@@ -76,7 +77,6 @@ from tracker.detect.psf import PsfEstimate
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.stars import StarTable
 from tracker.detect.threshold import gaussian_peak_threshold
-from tracker.detect.windowed import later_within
 from tracker.timing import StageTimer
 
 __all__ = ["StampDetector", "RING_PX"]
@@ -139,6 +139,7 @@ class StampDetector:
         self.ring_ranks = [k // 4, (k - 1) // 2, k // 2, (3 * k) // 4]  # quartiles, median
         self.level = np.zeros(n, np.float32)
         self.noise = np.zeros(n, np.float32)
+        self.earlier = np.tri(self.max_candidates, k=-1, dtype=bool)   # [i, j]: j before i
         self.cross = np.array([0, -1, 1, -n * c, n * c])   # a pixel and its 4 neighbours in
                                                            # filt, flat offsets
         self.table = StarTable(cfg.max_stars)
@@ -260,7 +261,13 @@ class StampDetector:
         win, py, px = win[order], py[order], px[order]
         # overlapping windows see one star's peak at one frame pixel: kept once
         at = (origins[win, 1] + py) * self.frame_shape[1] + origins[win, 0] + px
-        first = np.sort(np.unique(at, return_index=True)[1])[:self.max_candidates]
+        by_at = at.argsort(kind="stable")
+        at = at[by_at]
+        new = np.ones(len(at), bool)
+        np.not_equal(at[1:], at[:-1], out=new[1:])
+        first = by_at[new]
+        first.sort()
+        first = first[:self.max_candidates]
         self.counters["candidates"] = len(first)
         return win[first], py[first], px[first]
 
@@ -337,19 +344,21 @@ class StampDetector:
             x[pair], y[pair] = self._windowed(signal[pair].reshape(-1, side, side), x[pair],
                                               y[pair])
         grid = signal.reshape(m, side, side)
-        ex, ey = e = self.stamp_axis - np.array((x, y))[:, :, None]     # (2, m, side)
-        inv = -0.5 / self.expected_size
-        gx, gy = np.exp(inv * e * e)
+        e = self.stamp_axis - np.array((x, y))[:, :, None]     # (2, m, side): x, y
+        e2 = e * e
+        g = np.exp((-0.5 / self.expected_size) * e2)
+        gx, gy = g
         # the Gaussian weight is separable: profiles weighted along one axis, then moments
-        cols = np.einsum("nij,ni->nj", grid, gy) * gx          # (m, side) over columns
-        rows = np.einsum("nij,nj->ni", grid, gx) * gy          # (m, side) over rows
-        weighted = cols.sum(axis=1)
-        norm = np.sqrt(np.einsum("ij,ij->i", gx, gx) * np.einsum("ij,ij->i", gy, gy))
+        along = self._along_rows(grid, e, g)
+        profiles = np.empty((2, m, side))                      # weighted over columns, rows
+        np.multiply(along[:, 0], gx, out=profiles[0])
+        np.multiply(np.matmul(grid, gx[:, :, None])[:, :, 0], gy, out=profiles[1])
+        weighted = profiles[0].sum(axis=1)
+        norm = np.sqrt((g * g).sum(axis=2).prod(axis=0))
         snr = weighted / (noise * norm)
         total = np.maximum(weighted, 1e-12)
-        mxx = np.einsum("ij,ij->i", cols, ex * ex) / total
-        myy = np.einsum("ij,ij->i", rows, ey * ey) / total
-        mxy = np.einsum("nij,ni,nj->n", grid, gy * ey, gx * ex) / total
+        mxx, myy = (profiles * e2).sum(axis=2) / total
+        mxy = (along[:, 1] * gx * e[0]).sum(axis=1) / total
         size = mxx + myy
         ellipticity = np.hypot(mxx - myy, 2.0 * mxy) / np.maximum(size, 1e-12)
         width = 0.5 * size * (1.0 - ellipticity) / (0.5 * self.expected_size)
@@ -362,7 +371,13 @@ class StampDetector:
         fx, fy = at_x + x, at_y + y
         keep = (~sharp).nonzero()[0]
         keep = keep[np.argsort(-snr[keep], kind="stable")]
-        keep = keep[~later_within(fx[keep], fy[keep], _SAME_STAR_PX)]
+        # one star's detections in two windows: the later within _SAME_STAR_PX of an
+        # earlier one left out (the pairs of a frame's few dozen stars in one comparison)
+        kx, ky = fx[keep], fy[keep]
+        k = len(keep)
+        near = np.hypot(kx[:, None] - kx, ky[:, None] - ky) <= _SAME_STAR_PX
+        near &= self.earlier[:k, :k]
+        keep = keep[~near.any(axis=1)]
         self.counters["left_out"] = max(0, len(keep) - self.table.capacity)
         keep = keep[:self.table.capacity]
         count = len(keep)
@@ -388,17 +403,26 @@ class StampDetector:
         off their centres."""
         inv = -0.5 / self.expected_size
         pos = np.array((x, y))                                   # (2, m)
-        weight = np.empty((len(x), 2, len(self.stamp_axis)))     # g_y and g_y e_y by row
         for _ in range(_BLEND_STEPS):
             e = self.stamp_axis - pos[:, :, None]                # (2, m, side): x, y
             g = np.exp(inv * e * e)
-            weight[:, 0], weight[:, 1] = g[1], g[1] * e[1]
-            cols = np.einsum("nij,nai->naj", grid, weight)       # (m, 2, side)
-            sums = np.einsum("naj,nj->an", cols, g[0])           # (total, sum g e_y)
-            step = np.array((np.einsum("nj,nj->n", cols[:, 0], g[0] * e[0]), sums[1]))
+            cols = self._along_rows(grid, e, g)                  # (m, 2, side)
+            sums = np.matmul(cols, g[0][:, :, None])[:, :, 0].T  # (total, sum g e_y)
+            step = np.array(((cols[:, 0] * g[0] * e[0]).sum(axis=1), sums[1]))
             step *= 2.0 / np.where(sums[0] > 0, sums[0], np.inf)   # no light: no step
             pos = np.minimum(np.maximum(pos + step, -_MAX_SHIFT_PX), _MAX_SHIFT_PX)
         return pos[0], pos[1]
+
+    @staticmethod
+    def _along_rows(grid: np.ndarray, e: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """(m, 2, side): the stamps ``grid`` (m, side, side) summed over rows weighted by
+        g_y and by g_y e_y (``e``, ``g`` (2, m, side): offsets and Gaussian weights along
+        x and y), one batched matrix product (np.einsum parses its subscripts anew each
+        call: 4 times the product's cost on a frame's stamps)."""
+        by_row = np.empty((g.shape[1], 2, g.shape[2]))
+        by_row[:, 0] = g[1]
+        np.multiply(g[1], e[1], out=by_row[:, 1])
+        return np.matmul(by_row, grid)
 
     def _vertex(self, win: np.ndarray, py: np.ndarray,
                 px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
