@@ -52,10 +52,6 @@ import math
 
 import numpy as np
 
-# what np.einsum calls after its dispatch and keyword handling (a third of a call's cost
-# on a fit's arrays, seven calls a Gauss-Newton step): the same arithmetic to the bit
-from numpy.core.multiarray import c_einsum
-
 from tracker.normal import spaced_pixel_fractions
 
 __all__ = ["PixelGaussianFit"]
@@ -153,10 +149,10 @@ class PixelGaussianFit:
         np.matmul(v["weight"], cols, out=wb)            # (W dfx^2, W dfx fx, W fx^2)
         fy2, fydy = fy * fy, fy * dfy
         f, f2 = flux, flux * flux
-        by_fy2 = c_einsum("ij,ijk->ik", fy2, wb)       # (xx, xf, ff) / (F^2, F, 1)
-        by_fydy = c_einsum("ij,ijk->ik", fydy, wb[..., 1:])   # (xy, yf) / (F^2, F)
+        by_fy2 = np.einsum("ij,ijk->ik", fy2, wb)       # (xx, xf, ff) / (F^2, F, 1)
+        by_fydy = np.einsum("ij,ijk->ik", fydy, wb[..., 1:])   # (xy, yf) / (F^2, F)
         normal[:, 0, 0] = f2 * by_fy2[:, 0]
-        normal[:, 1, 1] = f2 * c_einsum("ij,ij->i", dfy * dfy, wb[..., 2])
+        normal[:, 1, 1] = f2 * np.einsum("ij,ij->i", dfy * dfy, wb[..., 2])
         normal[:, 2, 2] = by_fy2[:, 2]
         normal[:, 0, 1] = normal[:, 1, 0] = f2 * by_fydy[:, 0]
         normal[:, 0, 2] = normal[:, 2, 0] = f * by_fy2[:, 1]
@@ -164,9 +160,9 @@ class PixelGaussianFit:
         cols, rb = self._columns(m, 2)
         cols[..., 0], cols[..., 1] = dfx, fx
         np.matmul(v["resid"], cols, out=rb)             # (R dfx, R fx)
-        by_fy = c_einsum("ij,ijk->ik", fy, rb)
+        by_fy = np.einsum("ij,ijk->ik", fy, rb)
         np.multiply(by_fy[:, 0], f, out=grad[:, 0])
-        np.multiply(c_einsum("ij,ij->i", dfy, rb[..., 1]), f, out=grad[:, 1])
+        np.multiply(np.einsum("ij,ij->i", dfy, rb[..., 1]), f, out=grad[:, 1])
         grad[:, 2] = by_fy[:, 1]
 
     def run(self, m: int, signal: np.ndarray, raw: np.ndarray, x: np.ndarray, y: np.ndarray,
@@ -248,9 +244,9 @@ class PixelGaussianFit:
         flat = normal.reshape(len(normal), 9)
         a, b, c, d = flat.take(_ADJ, axis=1).transpose(1, 0, 2)     # (4, m, 9)
         adj = a * b - c * d
-        det = c_einsum("ij,ij->i", flat[:, :3], adj[:, :3])
+        det = np.einsum("ij,ij->i", flat[:, :3], adj[:, :3])
         good = np.isfinite(det) & (det > 0)
         if not good.any():
             return None
         scale = np.divide(1.0, det, out=np.zeros(len(det)), where=good)
-        return c_einsum("nij,nj->in", adj.reshape(-1, 3, 3), grad) * scale
+        return np.einsum("nij,nj->in", adj.reshape(-1, 3, 3), grad) * scale
