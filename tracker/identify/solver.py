@@ -12,15 +12,12 @@ last attitude and rate (for tracking) and the lens estimate.
    ``match_radius_px``. Lock is kept while the match verifies (below);
    otherwise:
 2. **Lost in space**: four-star patterns of the ``pattern_stars`` brightest
-   stars (those the detector flagged saturated, elongated or at the edge
-   only when too few others: tracker.identify.lost.clean_first) are
-   looked up by their scale-free code (tracker.identify.lost),
+   stars are looked up by their scale-free code (tracker.identify.lost),
    with the focal length anywhere in the configured prior
    (``identify.focal_tolerance`` around ``camera.focal_length_mm``). Each
    hypothesis (attitude and focal length) is verified by projecting the
    database stars and counting matches among the ``verify_stars``
-   brightest image stars (clean ones first, as the pattern stars): once
-   within three pixels, then, with attitude
+   brightest image stars: once within three pixels, then, with attitude
    and focal length refitted on those, within ``match_radius_px`` (or 3.5
    times the residuals' sigma, when the centroids are noisier). It is
    accepted when at least ``min_matched`` stars match and the probability
@@ -90,7 +87,7 @@ from tracker.config import IdentifyConfig
 from tracker.detect.result import StarFlag
 from tracker.identify.database import BoundDatabase
 from tracker.identify.lens import LensFilter, LensPrior, LensState, fit_frame
-from tracker.identify.lost import Hypothesis, PatternSearch, WorkBudget, clean_first
+from tracker.identify.lost import Hypothesis, PatternSearch, WorkBudget
 from tracker.identify.predict import (
     TrackPrediction,
     informative,
@@ -305,7 +302,6 @@ class Solver:
         self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
         self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
         self._snr: np.ndarray | None = None   # this frame's stars' SNR, as _prepare ordered them
-        self._flags: np.ndarray | None = None  # their detector flags (lost in space orders by them)
         self._faintest = math.inf   # catalogue magnitude of the faintest stars matched lately
         self._snr_zero: float | None = None   # log10 SNR + 0.4 mag of the last matches
 
@@ -355,7 +351,6 @@ class Solver:
         if len(idx) < max(4, self.cfg.min_matched):
             return "too_few_stars"   # no match of fewer could be accepted
         self._snr = np.asarray(stars["snr"], dtype=np.float64)[idx] if "snr" in names else None
-        self._flags = np.asarray(stars["flags"])[idx] if "flags" in names else None
         return idx, xy, (flux[idx] if has_flux else None)
 
     # -- public --------------------------------------------------------------
@@ -593,15 +588,14 @@ class Solver:
                        budget: WorkBudget, skip_f=None):
         """(R, prob_false, f_px) of the first verified hypothesis, or a reason code."""
         cfg = self.cfg
-        # the pattern stars lead the stars tested, in the same order (clean stars first)
-        tested = xy[clean_first(len(xy), cfg.verify_stars, self._flags)]
+        n_ver = min(cfg.verify_stars, len(xy))
         reason = "no_match"
         for hyp in self._search.hypotheses(xy, camera, f_low, f_high, cfg.pattern_stars,
-                                           budget, skip_f, self._flags):
+                                           budget, skip_f):
             if budget.hypotheses >= budget.max_hypotheses:
                 return "budget"
             budget.hypotheses += 1
-            result = self._verify(hyp, camera, tested, budget.chance)
+            result = self._verify(hyp, camera, xy[:n_ver], budget.chance)
             if result is not None:
                 return result
             reason = "not_verified"
