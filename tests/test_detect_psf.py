@@ -122,13 +122,6 @@ def test_the_tracker_averages_agreeing_frames_and_follows_a_change_at_once():
     assert abs(kept.sigma_px - 2.11) < 0.01 and kept.stars == 0
 
 
-def _combined(sigmas):
-    """combine_stars on round spots of these optical sigmas (px), min_stars 5."""
-    sigma = np.asarray(sigmas, float)
-    c = sigma ** 2 + 1.0 / 12.0                      # pixel covariances of round spots
-    return combine_stars(sigma, np.zeros_like(sigma), c, c, np.zeros_like(sigma), 5)
-
-
 def test_particle_hits_outnumbering_the_stars_do_not_set_the_psf():
     """A particle event's round hits (charge diffused to sigma 0.45-0.55 px, never blurred
     by the optics) outnumber a lunar frame's few bright stars: the mode of the sigmas is
@@ -283,9 +276,11 @@ def test_the_replay_record_carries_the_psf_and_what_was_left_out():
 
 
 def _combined(sigmas, min_stars=5):
+    """combine_stars on round spots (SNR 100) of these optical sigmas (px)."""
     s = np.asarray(sigmas, np.float64)
     c = s * s + 1.0 / 12.0        # round stars' pixel covariances
-    return combine_stars(s, np.zeros_like(s), c, c, np.zeros_like(s), min_stars)
+    return combine_stars(s, np.zeros_like(s), c, c, np.zeros_like(s), np.full_like(s, 100.0),
+                         min_stars)
 
 
 def test_psf_mode_takes_a_cluster_whose_scatter_fills_the_agreement_window():
@@ -298,6 +293,65 @@ def test_psf_mode_takes_a_cluster_whose_scatter_fills_the_agreement_window():
     est = _combined([1.45, 1.5, 1.52, 1.55, 1.6, 0.6, 0.62, 0.65])
     assert est is not None and est.stars == 5 and abs(est.sigma_px - 1.52) < 0.02
     assert _combined([2.0, 2.3, 2.7, 3.1, 3.6]) is None     # no five agree
+
+
+def _elongated(sigma, ellipticity, angle):
+    """Pixel covariances (cxx, cyy, cxy) of spots of optical sigma, ellipticity and long-axis
+    angle (arrays), the pixel's own width added."""
+    s, e, a = (np.asarray(v, np.float64) for v in (sigma, ellipticity, angle))
+    half, spread = s * s, e * s * s
+    return (half + spread * np.cos(2 * a) + 1.0 / 12.0, half - spread * np.cos(2 * a)
+            + 1.0 / 12.0, spread * np.sin(2 * a))
+
+
+def _noisy_shapes(rng, sigma, ellipticity, angle_rad, snr):
+    """Pixel covariances of spots of one PSF whose ellipticity vectors are scattered by
+    their noise: 2 / SNR per component (times the pixel width's share, as measured)."""
+    cxx, cyy, cxy = _elongated(sigma, ellipticity, np.full_like(sigma, angle_rad))
+    trace = cxx + cyy - 2.0 / 12.0
+    error = 2.0 * (cxx + cyy) / trace / snr
+    e1 = (cxx - cyy) / trace + error * rng.standard_normal(len(sigma))
+    e2 = 2.0 * cxy / trace + error * rng.standard_normal(len(sigma))
+    return 0.5 * trace * (1 + e1) + 1.0 / 12.0, 0.5 * trace * (1 - e1) + 1.0 / 12.0, \
+        0.5 * trace * e2
+
+
+def test_a_sharp_mode_of_bright_spots_pointing_every_way_is_no_psf():
+    """Short particle tracks are as sharp as the sharpest PSF (sigma 0.5-0.6 px measured),
+    bright (SNR 50-200) and elongated (0.3-0.45) every way: six of them agreed on sigma
+    0.55 and searched a frame of sigma 2.2 px stars with it. Each lies far beyond its
+    own noise from their median shape: too few share one, no PSF. Sharp stars of one
+    shape still measure it, with two tracks among them."""
+    rng = np.random.default_rng(3)
+    sigma = np.array([0.50, 0.53, 0.55, 0.55, 0.57, 0.60])
+    angle = np.arange(6) * np.pi / 6 + rng.uniform(0, 0.2, 6)
+    tracks = _elongated(sigma, rng.uniform(0.3, 0.45, 6), angle)
+    snr = np.array([50.0, 90.0, 120.0, 60.0, 200.0, 150.0])
+    assert combine_stars(sigma, np.full(6, 0.4), *tracks, snr, 5) is None
+    # eight stars of a sigma 0.6 px PSF of ellipticity 0.1 at 30 deg (SNR 40-400) and
+    # two tracks at 90 and 120 deg
+    s = rng.uniform(0.58, 0.62, 8)
+    star_snr = np.exp(rng.uniform(np.log(40.0), np.log(400.0), 8))
+    stars = _noisy_shapes(rng, s, 0.1, np.radians(30), star_snr)
+    both = [np.concatenate([a, b[3:5]]) for a, b in zip(stars, tracks, strict=True)]
+    est = combine_stars(np.concatenate([s, sigma[3:5]]), np.zeros(10), *both,
+                        np.concatenate([star_snr, snr[3:5]]), 5)
+    assert est is not None and est.stars == 10
+    assert abs(est.ellipticity - 0.1) < 0.05 and abs(np.degrees(est.angle_rad) - 30) < 15
+
+
+def test_faint_sharp_stars_scattered_in_shape_by_their_noise_measure_the_psf():
+    """A real 8-bit frame's faint stars (openstartracker img0: PSF sigma 0.65 px,
+    ellipticity 0.3, SNR 8-36) lie 0.2-0.55 from their median shape, as far as
+    particle tracks do, but within a few standard errors of their own: all count, in
+    every draw."""
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        s = rng.uniform(0.60, 0.70, 7)
+        snr = np.exp(rng.uniform(np.log(8.0), np.log(36.0), 7))
+        shapes = _noisy_shapes(rng, s, 0.3, np.radians(27), snr)
+        est = combine_stars(s, np.zeros(7), *shapes, snr, 5)
+        assert est is not None and est.stars == 7
 
 
 @pytest.mark.parametrize("sigma", [0.6, 0.9, 1.5, 2.0])

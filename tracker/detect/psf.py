@@ -36,7 +36,18 @@ Per frame (:class:`PsfMeter`):
    surface they outnumber the bright stars): the wider spots measure the
    PSF, and beside such a sharp population 3 agreeing stars (or
    ``min_stars`` if fewer) suffice; if the wider ones do not agree, the
-   frame has no measurement. The hits are left out of the estimate's robust
+   frame has no measurement. With no wider spots beside it, at least
+   ``min_stars`` of that sharp mode must share one shape within what each
+   one's noise allows: an ellipticity vector within sqrt(0.15^2 +
+   (4 sigma_e)^2) of their median one, sigma_e = 2 / SNR per component
+   (Bernstein and Jarvis 2002), scaled by the pixel width taken off; else
+   the frame has no measurement (if enough do, all the mode's spots count:
+   an undersampled star's shape also depends on where in its pixel it
+   lies, up to e 0.4 at sigma 0.5 px). A short particle track is as sharp
+   as the sharpest PSF, bright (SNR 30-300) and points its own way; where a
+   wide PSF's stars were too faint at the peak to be candidates, the tracks
+   alone would have measured it. Faint stars (SNR 10-40) scatter in shape
+   as widely and count. The hits are left out of the estimate's robust
    spread. (The windows are sized from the brightest dozen, and where those
    were such hits, candidates that grew 1.5 times wider than them, beyond
    their windows, are measured again in windows wide enough.)
@@ -92,6 +103,10 @@ _CHARGE_SIGMA_PX = _OPTICS_WIDER * SIGMA_MIN_PX
 # ... and the PSF meter's adaptive weight for it (never under _MIN_WEIGHT_PX)
 _CHARGE_WEIGHT_PX = max(_MIN_WEIGHT_PX, math.sqrt(_CHARGE_SIGMA_PX ** 2 + PIXEL_VARIANCE))
 _WIDER_STARS = 3             # ... measure the PSF if this many agree (or min_stars)
+# a sharp mode's spots share one shape: an ellipticity vector within this of their median
+# one beyond their noise (the optics' variation across a field) ...
+_SHAPE_FLOOR = 0.15
+_SHAPE_SIGMAS = 4.0          # ... plus this many standard errors of their own
 
 
 @dataclass(frozen=True)
@@ -228,8 +243,10 @@ class PsfMeter:
         good &= ((ellipticity < _MAX_ELLIPTICITY) & (sigma >= SIGMA_MIN_PX)
                  & (sigma <= SIGMA_MAX_PX))
         self.last_good = good
+        # the weighted flux's SNR: the Gaussian weight's sum of squares is pi w^2
+        snr = p["s0"] / (noise[:n] * np.sqrt(math.pi * p["w2"]))
         return combine_stars(sigma[good], ellipticity[good], p["cxx"][good], p["cyy"][good],
-                             p["cxy"][good], need)
+                             p["cxy"][good], snr[good], need)
 
     def last_stars(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The last :meth:`measure`'s usable stars: padded flat index, optical sigma (px),
@@ -397,11 +414,39 @@ def _densest(log_s: np.ndarray) -> float:
     return float(median(log_s[(log_s >= start) & (log_s < start + _BIN)]))
 
 
-def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstimate | None:
+def _shared_shape(cxx: np.ndarray, cyy: np.ndarray, cxy: np.ndarray, snr: np.ndarray,
+                  among: np.ndarray) -> np.ndarray:
+    """Which spots of pixel covariances ``cxx``, ``cyy``, ``cxy`` (px^2) and weighted-flux
+    ``snr`` have the shape of those ``among`` (bool): an ellipticity vector (e cos 2 theta,
+    e sin 2 theta, pixel width removed) within _SHAPE_FLOOR, and _SHAPE_SIGMAS of its own
+    standard errors, of those spots' median vector.
+
+    Adaptive moments measure each component of a spot's ellipticity to
+    2 / SNR (Bernstein and Jarvis 2002); taking the pixel's width off
+    scales it by trace(C) / trace(C_optics). The optics blur every star of
+    a frame alike, so stars lie about their PSF's vector by their noise
+    (and the optics' variation across the field): on the real frame
+    openstartracker/img0.png (PSF 0.65 px, e 0.3) its sharp stars at SNR
+    8-36 lie 0.2-0.55 from their median, 1-3.5 standard errors. Short
+    particle tracks are as sharp, point every way and are bright: on the
+    bench's glare and lunar frames 0.2-0.6 from their median at SNR 46-200,
+    6-38 standard errors (of 12, two near the median by chance).
+    """
+    a = cxx - PIXEL_VARIANCE
+    b = cyy - PIXEL_VARIANCE
+    trace = np.maximum(a + b, 1e-12)
+    e1, e2 = (a - b) / trace, 2.0 * cxy / trace
+    error = 2.0 * (cxx + cyy) / trace / np.maximum(snr, 1e-12)
+    allowed = np.hypot(_SHAPE_FLOOR, _SHAPE_SIGMAS * error)
+    return np.hypot(e1 - median(e1[among]), e2 - median(e2[among])) <= allowed
+
+
+def combine_stars(sigma, ellipticity, cxx, cyy, cxy, snr, min_stars: int) -> PsfEstimate | None:
     """The mode of the stars' sigmas and the median tensor of the stars near it.
 
-    ``sigma``, ``ellipticity`` and the pixel covariances ``cxx``, ``cyy``,
-    ``cxy`` (px^2) of each star; None when fewer than ``min_stars`` agree.
+    ``sigma``, ``ellipticity``, the pixel covariances ``cxx``, ``cyy``,
+    ``cxy`` (px^2) and the weighted flux's signal-to-noise ratio ``snr`` of
+    each star; None when fewer than ``min_stars`` agree.
     """
     if len(sigma) < min_stars:
         return None
@@ -410,6 +455,11 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, min_stars: int) -> PsfEstim
     agree = np.abs(log_s - best) <= _AGREE
     wider = log_s > best + _OPTICS_GAP
     charge = math.log(_CHARGE_SIGMA_PX)
+    if (best < charge and np.count_nonzero(wider) < 2
+            and np.count_nonzero(_shared_shape(cxx, cyy, cxy, snr, agree) & agree) < min_stars):
+        # as sharp as a particle's charge, no wider spots, and too few of them share one
+        # shape within their noise: short tracks pointing every way, not a PSF's stars
+        return None
     if best < charge and np.count_nonzero(wider) >= 2:
         # spots far wider than the mode: the mode is particles' charge, which the optics
         # never blurred, and the frame's stars are the wider spots (or, if they do not
