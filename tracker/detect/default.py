@@ -856,7 +856,8 @@ class DefaultDetector:
         _, sigma, ellipticity, _ = meter.last_stars()
         p = meter.per_star
         return combine_stars(sigma, ellipticity, p["cxx"][:n][good], p["cyy"][:n][good],
-                             p["cxy"][:n][good], self.cfg.psf_min_stars) is None
+                             p["cxy"][:n][good], meter.last_snr[good],
+                             self.cfg.psf_min_stars) is None
 
     def _meter(self, cand: np.ndarray, peak: np.ndarray, noise: np.ndarray,
                min_stars: int | None = None):

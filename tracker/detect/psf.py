@@ -172,6 +172,7 @@ class PsfMeter:
         self._raw = np.zeros(c * k, np.uint16)
         self._bgwin = np.zeros(c * k, np.float32)
         self.last_cand, self.last_n, self.last_good = np.zeros(0, np.intp), 0, np.zeros(0, bool)
+        self.last_snr = np.zeros(0)   # the last measure's weighted-flux SNR of its n spots
         # one row per quantity; x and y, and mxx and myy, adjacent so that both axes
         # are worked on in one call
         names = ("x", "y", "mxx", "myy", "w2", "s0", "mxy", "cxx", "cyy", "cxy", "ring",
@@ -245,6 +246,7 @@ class PsfMeter:
         self.last_good = good
         # the weighted flux's SNR: the Gaussian weight's sum of squares is pi w^2
         snr = p["s0"] / (noise[:n] * np.sqrt(math.pi * p["w2"]))
+        self.last_snr = snr
         return combine_stars(sigma[good], ellipticity[good], p["cxx"][good], p["cyy"][good],
                              p["cxy"][good], snr[good], need)
 
