@@ -332,9 +332,13 @@ class IdentifyConfig:
                                        "temperature); 0 = no forgetting", "s", min=0.0,
                                        max=1e7)
     pattern_stars: int = knob(12, "brightest image stars whose four-star patterns lost in "
-                              "space tries", "stars", min=4, max=64)
-    verify_stars: int = knob(40, "brightest image stars checked against a hypothesis",
-                             "stars", min=5, max=1024)
+                              "space tries (in brightness order; if that finds nothing, once more "
+                              "with those the detector flagged saturated, elongated or at "
+                              "the edge last)", "stars", min=4,
+                              max=64)
+    verify_stars: int = knob(40, "brightest image stars checked against a hypothesis "
+                             "(in the order pattern_stars are drawn)", "stars", min=5,
+                             max=1024)
     pattern_tolerance_px: float = knob(2.0, "largest error expected on the length of a "
                                        "pattern's edge (centroid errors plus unmodelled "
                                        "distortion)", "px", min=0.01, max=100.0)

@@ -1,7 +1,10 @@
 """Lost-in-space search: four-star image patterns looked up by their scale-free code.
 
 The brightest image stars are taken four at a time in a fixed order
-(tracker.identify.patterns.pattern_order). For each four:
+(tracker.identify.patterns.pattern_order); given the detector's flags
+(the solver's second pass), those it flagged as doubtful (``DOUBTFUL``:
+saturated, elongated, at the frame's edge) only after the others
+(:func:`clean_first`). For each four:
 
 1. their pixel positions become unit vectors with the focal length at both
    ends and the centre of the prior [f_low, f_high]; the code (sorted edge
@@ -33,12 +36,20 @@ import numpy as np
 
 from tracker.attitude import solve_wahba
 from tracker.camera import CameraModel
+from tracker.detect.result import StarFlag
 from tracker.identify.database import BoundDatabase
 from tracker.identify.patterns import EDGES, code_bounds, codes, edge_angles, match_stars
 from tracker.identify.patterns import pattern_order as _pattern_order
 
-__all__ = ["WorkBudget", "Hypothesis", "PatternSearch"]
+__all__ = ["WorkBudget", "Hypothesis", "PatternSearch", "DOUBTFUL", "clean_first"]
 
+# Detector flags that make a source a poor pattern star. On the lunar frames of
+# tracker bench detect (8 and 16 mm, 10 frames each, the 20 brightest sources of
+# each frame) 24 of the 26 sources so flagged were not stars (particle hits
+# saturating on glare, glare and crescent fragments, sources cut by the frame's
+# edge), against 157 of the 284 unflagged; a real star so flagged is still verified
+# and matched.
+DOUBTFUL = StarFlag.SATURATED | StarFlag.ELONGATED | StarFlag.EDGE
 _BATCH = 24
 _TRIPLES = np.array([(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)], dtype=np.int64)
 
@@ -105,18 +116,23 @@ class PatternSearch:
 
     def hypotheses(self, xy: np.ndarray, camera: CameraModel, f_low: float, f_high: float,
                    n_stars: int, budget: WorkBudget,
-                   skip_f: tuple[float, float] | None = None) -> Iterator[Hypothesis]:
-        """Hypotheses from the ``n_stars`` brightest of ``xy`` (n, 2), brightest first.
+                   skip_f: tuple[float, float] | None = None,
+                   flags: np.ndarray | None = None) -> Iterator[Hypothesis]:
+        """Hypotheses from ``n_stars`` of ``xy`` (m, 2), sorted brightest first: the
+        brightest, those ``flags`` (m,) marks doubtful last (:func:`clean_first`).
 
         ``camera`` gives the principal point and distortion; its focal length
         is replaced by f_low, the centre and f_high (px). Stops when the
         budget's pattern count is reached (the caller counts hypotheses).
         ``skip_f`` (low, high): hypotheses whose focal length lies inside are
-        not yielded (already tried by a narrower search).
+        not yielded (already tried by a narrower search). A hypothesis'
+        ``image`` indexes ``xy``.
         """
-        n = min(n_stars, len(xy))
+        pick = clean_first(len(xy), n_stars, flags)
+        n = len(pick)
         if n < 4:
             return
+        xy = xy[pick]
         f_mid = 0.5 * (f_low + f_high)
         cams = [dataclasses.replace(camera, f_px=f) for f in (f_low, f_mid, f_high)]
         vecs = np.stack([c.pixel_to_vector(xy[:n]) for c in cams])     # (3, n, 3)
@@ -148,8 +164,8 @@ class PatternSearch:
                     if not _same_handedness(cams[1].pixel_to_vector(xy[quad]), ref):
                         continue
                     obs = dataclasses.replace(camera, f_px=float(f_est)).pixel_to_vector(xy[quad])
-                    yield Hypothesis(R=solve_wahba(obs, ref), f_px=float(f_est), image=quad,
-                                     stars=stars)
+                    yield Hypothesis(R=solve_wahba(obs, ref), f_px=float(f_est),
+                                     image=pick[quad], stars=stars)
 
     def _candidates(self, mid, low, high, spread, f_mid, f_low, f_high, skip_f):
         """Catalogue patterns matching a batch of image patterns.
@@ -173,6 +189,26 @@ class PatternSearch:
             ok &= (f_est < skip_f[0]) | (f_est > skip_f[1])
         stars = np.take_along_axis(cat, perm, axis=1)
         return box[ok], stars[ok], f_est[ok], shares
+
+
+def clean_first(count: int, n: int, flags: np.ndarray | None = None) -> np.ndarray:
+    """Indices of (at most) ``n`` of ``count`` stars, in the order lost in space uses them.
+
+    The stars are sorted brightest first; ``flags`` (count,) are the
+    detector's (tracker.detect.result.StarFlag; None: the ``n`` brightest).
+    The brightest stars without a ``DOUBTFUL`` flag come first, brightest
+    first; doubtful stars (the brightest of them first) only fill the list
+    when fewer than ``n`` stars are clean. Pattern stars are drawn this way
+    (a few bright false stars the detector flagged then cost no pattern, where
+    in brightness order every pattern holding one of them is wasted and real
+    stars behind them may be left out of the ``n``), and so are the stars a
+    hypothesis is tested on (the pattern stars lead them): the choice depends
+    on no hypothesis, so the false-match odds (tracker.identify.verify) hold.
+    """
+    if flags is None:
+        return np.arange(min(n, count))
+    doubtful = (np.asarray(flags)[:count] & DOUBTFUL) != 0
+    return np.argsort(doubtful, kind="stable")[:n]
 
 
 def _same_handedness(img: np.ndarray, ref: np.ndarray) -> bool:

@@ -12,12 +12,16 @@ last attitude and rate (for tracking) and the lens estimate.
    ``match_radius_px``. Lock is kept while the match verifies (below);
    otherwise:
 2. **Lost in space**: four-star patterns of the ``pattern_stars`` brightest
-   stars are looked up by their scale-free code (tracker.identify.lost),
+   stars (in brightness order; when that finds nothing, once more with
+   those the detector flagged saturated, elongated or at the edge last:
+   tracker.identify.lost.clean_first) are looked up by their scale-free
+   code (tracker.identify.lost),
    with the focal length anywhere in the configured prior
    (``identify.focal_tolerance`` around ``camera.focal_length_mm``). Each
    hypothesis (attitude and focal length) is verified by projecting the
    database stars and counting matches among the ``verify_stars``
-   brightest image stars: once within three pixels, then, with attitude
+   brightest image stars (in the pattern stars' order): once
+   within three pixels, then, with attitude
    and focal length refitted on those, within ``match_radius_px`` (or 3.5
    times the residuals' sigma, when the centroids are noisier). It is
    accepted when at least ``min_matched`` stars match and the probability
@@ -87,7 +91,7 @@ from tracker.config import IdentifyConfig
 from tracker.detect.result import StarFlag
 from tracker.identify.database import BoundDatabase
 from tracker.identify.lens import LensFilter, LensPrior, LensState, fit_frame
-from tracker.identify.lost import Hypothesis, PatternSearch, WorkBudget
+from tracker.identify.lost import Hypothesis, PatternSearch, WorkBudget, clean_first
 from tracker.identify.predict import (
     TrackPrediction,
     informative,
@@ -302,6 +306,7 @@ class Solver:
         self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
         self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
         self._snr: np.ndarray | None = None   # this frame's stars' SNR, as _prepare ordered them
+        self._flags: np.ndarray | None = None  # their detector flags (lost in space orders by them)
         self._faintest = math.inf   # catalogue magnitude of the faintest stars matched lately
         self._snr_zero: float | None = None   # log10 SNR + 0.4 mag of the last matches
 
@@ -351,6 +356,7 @@ class Solver:
         if len(idx) < max(4, self.cfg.min_matched):
             return "too_few_stars"   # no match of fewer could be accepted
         self._snr = np.asarray(stars["snr"], dtype=np.float64)[idx] if "snr" in names else None
+        self._flags = np.asarray(stars["flags"])[idx] if "flags" in names else None
         return idx, xy, (flux[idx] if has_flux else None)
 
     # -- public --------------------------------------------------------------
@@ -586,16 +592,43 @@ class Solver:
 
     def _lost_in_space(self, xy, camera: CameraModel, f_low: float, f_high: float,
                        budget: WorkBudget, skip_f=None):
-        """(R, prob_false, f_px) of the first verified hypothesis, or a reason code."""
+        """(R, prob_false, f_px) of the first verified hypothesis, or a reason code.
+
+        Two passes. The first draws pattern stars (and tests hypotheses on stars)
+        in brightness order: the database holds each region's brightest stars,
+        and a frame's brightest stars are often real and saturated. When it
+        finds nothing and the detector flagged some of the first stars doubtful
+        (:func:`tracker.identify.lost.clean_first`), a second pass, with as much
+        work again, draws them unflagged first: a few bright false stars (particle
+        hits saturating on glare, glare fragments) then cost no pattern. The
+        chance of a wrong pattern's lookup (``budget.chance``) adds up over both
+        passes, so the false-match odds count every pattern looked up.
+        """
         cfg = self.cfg
-        n_ver = min(cfg.verify_stars, len(xy))
+        found = self._pattern_pass(xy, camera, f_low, f_high, budget, skip_f, None)
+        if isinstance(found, tuple) or self._flags is None:
+            return found
+        order = clean_first(len(xy), cfg.pattern_stars, self._flags)
+        if np.array_equal(order, np.arange(len(order))):
+            return found        # nothing doubtful among the pattern stars: the same pass
+        budget.max_patterns += cfg.max_patterns
+        budget.max_hypotheses += cfg.max_hypotheses
+        second = self._pattern_pass(xy, camera, f_low, f_high, budget, skip_f, self._flags)
+        return second if isinstance(second, tuple) or found == "no_match" else found
+
+    def _pattern_pass(self, xy, camera: CameraModel, f_low: float, f_high: float,
+                      budget: WorkBudget, skip_f, flags):
+        """One lost-in-space pass with stars in ``clean_first`` order for ``flags``."""
+        cfg = self.cfg
+        # the pattern stars lead the stars tested, in the same order
+        tested = xy[clean_first(len(xy), cfg.verify_stars, flags)]
         reason = "no_match"
         for hyp in self._search.hypotheses(xy, camera, f_low, f_high, cfg.pattern_stars,
-                                           budget, skip_f):
+                                           budget, skip_f, flags):
             if budget.hypotheses >= budget.max_hypotheses:
                 return "budget"
             budget.hypotheses += 1
-            result = self._verify(hyp, camera, xy[:n_ver], budget.chance)
+            result = self._verify(hyp, camera, tested, budget.chance)
             if result is not None:
                 return result
             reason = "not_verified"
