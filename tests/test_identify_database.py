@@ -1,5 +1,6 @@
 """Pattern databases: what a build holds, the index, the cache, ``tracker database``."""
 
+import dataclasses
 import hashlib
 import io
 import itertools
@@ -10,9 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from identify_sim import camera, catalogue
+from test_identify_real import REAL, rough_config, truth_focal_mm
 
-from tracker.catalogue import load_catalogue
+from tracker.camera import CameraModel
+from tracker.catalogue import Catalogue, load_catalogue
 from tracker.cli import main
+from tracker.commands.calibrate import load_stars
 from tracker.config import IdentifyConfig
 from tracker.identify import DatabaseError, make_solver
 from tracker.identify.cache import BUILD_EPOCH, cache_dir, design_for, serves
@@ -125,7 +129,7 @@ def test_lookup_finds_every_pattern_inside_its_box(wide_db):
         assert np.all(share > 0)
 
 
-def test_cache_builds_once_and_reuses(tmp_path):
+def test_cache_builds_once_and_reuses_only_the_cameras_own_design(tmp_path):
     calls = []
     cfg = IdentifyConfig(cache_dir=str(tmp_path))
     first = make_solver(cfg, camera(8.0), catalogue(), lambda s, f: calls.append((s, f)))
@@ -135,12 +139,38 @@ def test_cache_builds_once_and_reuses(tmp_path):
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
     assert Path(f"{path}.sha256").read_text() == f"{digest}  {path.name}\n"
     calls.clear()
-    # the same lens, and one 3 % longer, reuse it
-    for focal in (8.0, 8.24):
-        again = make_solver(cfg, camera(focal), catalogue(), lambda s, f: calls.append(s))
-        assert again.bound.path == first.bound.path
-    assert calls == []
+    again = make_solver(cfg, camera(8.0), catalogue(), lambda s, f: calls.append(s))
+    assert again.bound.path == first.bound.path and calls == []
     assert sorted(p.name for p in tmp_path.iterdir()) == [path.name, f"{path.name}.sha256"]
+    # a lens 3 % longer, which the 8 mm database would suit, gets its own design
+    longer = make_solver(cfg, camera(8.24), catalogue(), lambda s, f: calls.append(s))
+    assert calls and longer.bound.design == design_for(camera(8.24)) != first.bound.design
+
+
+def test_a_frame_solves_the_same_whatever_else_the_cache_holds(tmp_path):
+    """A real frame (cedar-solve, configured 5 % short) with an empty cache and with
+    one holding a database of a neighbouring field (a lens 4 % longer, whose
+    regions are 4 % smaller), which an earlier run of another camera leaves:
+    the same database, the same matches, the same attitude to the bit."""
+    frame = "cedar-solve/jan1_g90_e100ms.jpg"
+    cfg = rough_config(frame, 0.95 * truth_focal_mm(frame))
+    cam = CameraModel.from_config(cfg.camera)
+    cat = Catalogue.from_config(cfg.catalogue)
+    stars, _, _ = load_stars(REAL / f"{frame}.centroids.json", cfg)
+    neighbour = CameraModel.from_config(dataclasses.replace(
+        cfg.camera, focal_length_mm=1.04 * cfg.camera.focal_length_mm))
+    prefilled = tmp_path / "prefilled"
+    make_solver(IdentifyConfig(cache_dir=str(prefilled)), neighbour, cat)
+    solutions = []
+    for folder in (tmp_path / "empty", prefilled):
+        solver = make_solver(dataclasses.replace(cfg.identify, cache_dir=str(folder)), cam, cat)
+        assert solver.bound.design == design_for(cam)
+        solutions.append(solver.solve(stars, 0))
+    fresh, crowded = solutions
+    assert fresh.ok and crowded.ok
+    np.testing.assert_array_equal(fresh.q, crowded.q)
+    np.testing.assert_array_equal(fresh.hip, crowded.hip)
+    assert len(list(prefilled.glob("patterns_*.npz"))) == 2
 
 
 def test_a_corrupt_cached_database_is_built_again(tmp_path):
@@ -197,4 +227,4 @@ def test_database_command_builds_with_progress_then_finds_it(tmp_path, capsys):
     assert ": already there (" in capsys.readouterr().err
     assert main(["database", "list", "--config", str(config), "--cache-dir",
                  str(tmp_path / "db")]) == 0
-    assert "<- serves the camera" in capsys.readouterr().out
+    assert "<- the camera's" in capsys.readouterr().out

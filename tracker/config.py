@@ -311,8 +311,9 @@ class IdentifyConfig:
     """Star identification (tracker.identify)."""
 
     enabled: bool = knob(True, "identify stars and solve attitude")
-    database: str | None = knob(None, "pattern database file; null = one that fits the "
-                                "camera, from the package's data folder or the cache folder, "
+    database: str | None = knob(None, "pattern database file; null = the one designed for "
+                                "the camera section (the same design and catalogue, nothing "
+                                "else), from the package's data folder or the cache folder, "
                                 "built there on first use", "path")
     cache_dir: str | None = knob(None, "folder of built pattern databases; null = "
                                  "$STATE_DIRECTORY (the systemd unit's StateDirectory), else "

@@ -3,8 +3,9 @@
 ``build`` makes, ahead of time, the database the configured camera needs
 (what the service would otherwise build on its first start), in the cache
 folder (``identify.cache_dir``; on the Pi the unit's state directory), with
-progress; if one that serves the camera is already there it says so and
-stops. ``list`` shows the databases found, and which serves the camera.
+progress; if it is already there it says so and stops. ``list`` shows the
+databases found, which one is the camera's and which others would suit it
+(they are not used: tracker.identify.cache).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from tracker.camera import CameraModel
 from tracker.catalogue import Catalogue
 from tracker.commands.progress import Progress
 from tracker.identify import database_for
-from tracker.identify.cache import cache_dir, serves
+from tracker.identify.cache import cache_dir, database_file, design_for, serves
 from tracker.identify.database import (
     DatabaseDesign,
     ProgressLines,
@@ -41,7 +42,7 @@ def register(sub, common) -> None:
                         "`tracker config`)")
     q.set_defaults(func=run_build)
     q = actions.add_parser("list", parents=[common],
-                           help="list the databases found and which serves the camera")
+                           help="list the databases found and which is the camera's")
     q.add_argument("--cache-dir", metavar="DIR", help="the cache folder to list")
     q.set_defaults(func=run_list)
 
@@ -98,6 +99,7 @@ def run_build(args, cfg) -> int:
 
 def run_list(args, cfg) -> int:
     camera, folder, (f_low, f_high) = _camera_and_folder(args, cfg)
+    own = database_file(design_for(camera), Catalogue.from_config(cfg.catalogue).sha256)
     rows = 0
     for where in (bundled_database_dir(), folder):
         for path in sorted(where.glob("patterns_*.npz")):
@@ -106,7 +108,9 @@ def run_list(args, cfg) -> int:
                 print(f"{path}: not a current pattern database", file=sys.stdout)
                 continue
             design = DatabaseDesign(**meta["design"])
-            mark = "  <- serves the camera" if serves(design, camera, f_low, f_high) else ""
+            mark = ("  <- the camera's" if path.name == own else
+                    "  (would suit the camera; not used)" if serves(design, camera, f_low, f_high)
+                    else "")
             print(f"{path}: region radius {design.region_radius_deg:g} deg, "
                   f"{meta['n_stars']:,} stars to Hp {meta['faintest_mag']:.2f}, "
                   f"{meta['n_patterns']:,} patterns, {path.stat().st_size / 1e6:.2f} MB{mark}")

@@ -54,22 +54,20 @@ def database_for(cfg: IdentifyConfig, camera: CameraModel, catalogue,
                  progress: Progress | None = None) -> PatternDatabase:
     """The pattern database for this camera: the configured file, or found or built.
 
-    With ``cfg.database`` null a database serving the camera over the whole
-    focal-length prior is looked for in the package's data folder and the cache folder
-    (tracker.identify.cache) and built into the cache folder when none
-    does (logged, or reported to ``progress(stage, fraction)``). A cached
-    database that fails its checksum is built again.
+    With ``cfg.database`` null the camera's database (its design a function
+    of the camera's configuration alone, tracker.identify.cache) is looked
+    for in the package's data folder and the cache folder and built into the
+    cache folder when neither holds it (logged, or reported to
+    ``progress(stage, fraction)``). A cached database that fails its
+    checksum is built again.
     """
     if cfg.database is not None:
         return PatternDatabase.load(cfg.database)
-    f_low = camera.f_px * (1.0 - cfg.focal_tolerance)
-    f_high = camera.f_px * (1.0 + cfg.focal_tolerance)
     folder = cache_dir(cfg.cache_dir)
     progress = progress or ProgressLines(
         _log.info, prefix="building the pattern database (once; `tracker database build` "
         "does it ahead of time)")
-    path = find_or_build(camera, f_low, f_high, catalogue.path or None, catalogue.sha256,
-                         folder, progress)
+    path = find_or_build(camera, catalogue.path or None, catalogue.sha256, folder, progress)
     try:
         return PatternDatabase.load(path)
     except DatabaseError as exc:
@@ -77,14 +75,14 @@ def database_for(cfg: IdentifyConfig, camera: CameraModel, catalogue,
             raise                     # not ours to replace
         _log.warning("%s; building it again", exc)
         path.unlink()
-        path = find_or_build(camera, f_low, f_high, catalogue.path or None,
-                             catalogue.sha256, folder, progress)
+        path = find_or_build(camera, catalogue.path or None, catalogue.sha256, folder,
+                             progress)
         return PatternDatabase.load(path)
 
 
 def make_solver(cfg: IdentifyConfig, camera: CameraModel, catalogue,
                 progress: Progress | None = None) -> Solver:
-    """A solver for this camera with a pattern database that serves it (:func:`database_for`).
+    """A solver for this camera with its pattern database (:func:`database_for`).
 
     A database named explicitly that does not serve the camera is loaded
     anyway and every solve returns ``reason="wrong_fov"`` (logged once here).

@@ -2,17 +2,21 @@
 
 A database is designed for a field (:func:`design_for`): its regions are
 about the size of the camera's field and its thresholds a few of its
-pixels. It serves every camera whose ideal region radius, over the whole
-focal-length prior, lies within +-12 % of its own (:func:`serves`), so a
-lens a few percent off, or a similar camera, reuses it.
+pixels. The design is a pure function of the camera's configuration (image
+size, pixel size, focal length): no other database is ever taken in its
+place, so the same frame and configuration solve the same way whatever
+databases other cameras, lenses or earlier versions left in the folders.
+:func:`serves` still says whether a design suits a camera over its whole
+focal-length prior (+-12 % in region radius), for a database named
+explicitly (``identify.database``) and for ``tracker database list``.
 
-:func:`find_or_build` looks in the package's data folder (:mod:`tracker.data`) and
-then in the cache folder (:func:`cache_dir`) for a database that serves the
-camera and was built from the same catalogue (SHA-256 equal); when none
-does it builds one from the bundled catalogue into the cache folder, with
-progress, and the next start finds it there. Builds are deterministic (a
-fixed epoch, elementwise arithmetic), so a database built on a laptop
-equals the one built on the Pi.
+:func:`find_or_build` looks in the package's data folder (:mod:`tracker.data`)
+and then in the cache folder (:func:`cache_dir`) for the file named by the
+design and the catalogue's SHA-256 (:func:`database_file`) whose metadata
+holds that very design and catalogue; when neither holds it, it builds it
+from the catalogue into the cache folder, with progress, and the next start
+finds it there. Builds are deterministic (a fixed epoch, elementwise
+arithmetic), so a database built on a laptop equals the one built on the Pi.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 from tracker.camera import CameraModel
@@ -34,8 +39,8 @@ from tracker.identify.database import (
     save_database,
 )
 
-__all__ = ["cache_dir", "design_for", "serves", "find_database", "find_or_build",
-           "BUILD_EPOCH"]
+__all__ = ["cache_dir", "design_for", "serves", "database_file", "find_database",
+           "find_or_build", "BUILD_EPOCH"]
 
 # Design constants (angles from the camera):
 REGION_SCALE = 1.0      # region radius / radius of the disc with the frame's area
@@ -86,15 +91,6 @@ def design_for_radius(region_radius_deg: float, pixel_deg: float) -> DatabaseDes
                           min_edge_deg=round(MIN_EDGE_PX * pixel_deg, 6), key_bin=KEY_BIN)
 
 
-def _current(design: DatabaseDesign) -> bool:
-    """Was the design made by this version's rules (the same choices but the field)?"""
-    made = design_for_radius(design.region_radius_deg, 1.0)
-    return (math.isclose(design.lattice_deg / design.region_radius_deg,
-                         made.lattice_deg / made.region_radius_deg, rel_tol=1e-3)
-            and (design.pattern_stars, design.verify_stars, design.key_bin)
-            == (made.pattern_stars, made.verify_stars, made.key_bin))
-
-
 def serves(design: DatabaseDesign, camera: CameraModel, f_low_px: float, f_high_px: float
            ) -> bool:
     """True if the design suits the camera for every focal length in [f_low_px, f_high_px]."""
@@ -103,46 +99,40 @@ def serves(design: DatabaseDesign, camera: CameraModel, f_low_px: float, f_high_
     return rho / (1 + SERVE_MARGIN) <= narrow and wide <= rho * (1 + SERVE_MARGIN)
 
 
-def find_database(camera: CameraModel, f_low_px: float, f_high_px: float, catalogue_sha256: str,
-                  folders: list[Path]) -> Path | None:
-    """The database in ``folders`` that serves the camera best, or None.
+def database_file(design: DatabaseDesign, catalogue_sha256: str) -> str:
+    """File name of a design built from a catalogue: the design's name and the
+    first 12 hex digits of the catalogue's SHA-256."""
+    return design.name.replace(".npz", f"_{catalogue_sha256[:12]}.npz")
 
-    Best: region radius nearest the camera's at its focal length; ties go
-    to the earlier folder and then the file name, so the choice is fixed.
+
+def find_database(design: DatabaseDesign, catalogue_sha256: str, folders: list[Path]
+                  ) -> Path | None:
+    """The first of ``folders`` holding this design built from this catalogue, or None.
+
+    Found by file name (:func:`database_file`) and checked in its metadata;
+    databases of other designs are never looked at.
     """
-    ideal = math.degrees(_region_radius(camera, camera.f_px))
-    best, best_score = None, math.inf
     for folder in folders:
-        for path in sorted(Path(folder).glob("patterns_*.npz")):
-            meta = read_meta(path)
-            if meta is None or meta.get("catalogue_sha256") != catalogue_sha256:
-                continue
-            try:
-                design = DatabaseDesign(**meta["design"])
-            except (TypeError, DatabaseError):
-                continue
-            if not _current(design):
-                continue
-            score = abs(math.log(design.region_radius_deg / ideal))
-            if serves(design, camera, f_low_px, f_high_px) and score < best_score:
-                best, best_score = path, score
-    return best
+        path = Path(folder) / database_file(design, catalogue_sha256)
+        meta = read_meta(path)
+        if (meta is not None and meta.get("catalogue_sha256") == catalogue_sha256
+                and meta.get("design") == asdict(design)):
+            return path
+    return None
 
 
-def find_or_build(camera: CameraModel, f_low_px: float, f_high_px: float, catalogue_path,
-                  catalogue_sha256: str, folder: Path, progress: Progress | None = None
-                  ) -> Path:
-    """A database serving the camera: found (bundled, then ``folder``) or built into ``folder``.
+def find_or_build(camera: CameraModel, catalogue_path, catalogue_sha256: str, folder: Path,
+                  progress: Progress | None = None) -> Path:
+    """The camera's database (:func:`design_for`): found (bundled, then ``folder``) or built.
 
     ``catalogue_path`` is the catalogue file the database is built from
     (None = the bundled one); ``progress(stage, fraction)`` follows a build.
     Raises :class:`DatabaseError` if the folder cannot be written.
     """
-    found = find_database(camera, f_low_px, f_high_px, catalogue_sha256,
-                          [bundled_database_dir(), folder])
+    design = design_for(camera)
+    found = find_database(design, catalogue_sha256, [bundled_database_dir(), folder])
     if found is not None:
         return found
-    design = design_for(camera)
     try:    # before the build, so a folder that cannot take it costs nothing
         folder.mkdir(parents=True, exist_ok=True)
         if not os.access(folder, os.W_OK):
@@ -150,7 +140,7 @@ def find_or_build(camera: CameraModel, f_low_px: float, f_high_px: float, catalo
     except OSError as exc:
         raise _unwritable(folder, exc) from None
     catalogue = load_catalogue(catalogue_path, epoch_year=BUILD_EPOCH)
-    path = folder / design.name
+    path = folder / database_file(design, catalogue_sha256)
     t0 = time.perf_counter()
     built = build_database(catalogue, design, progress)
     built["meta"]["build_seconds"] = round(time.perf_counter() - t0, 2)
