@@ -1052,8 +1052,9 @@ class DefaultDetector:
         its interpolated background spreads by some 200 ADU where the sky's spreads
         by 0.5, and a row of such tiles below a sky tile, with one straddling the
         edge beside it, is the median's majority; the threshold there rose out of
-        reach of stars well above the horizon. The lower middle value is taken (no
-        mean of two: an even count of sky neighbours is common).
+        reach of stars well above the horizon. Of an even count of sky neighbours
+        (common) the upper middle value is taken: with three or four of them the lower
+        one sets the threshold low often enough to let noise peaks through.
         """
         pad = self.sky_pad
         where = np.flatnonzero(self.sky_edge)
@@ -1070,7 +1071,7 @@ class DefaultDetector:
             values = pad.ravel()[around]
             values.sort(axis=1)                       # not a number (a body's tile) last
             count = np.count_nonzero(~np.isnan(values), axis=1)
-            medians.append(values[np.arange(len(where)), (count - 1) // 2])
+            medians.append(values[np.arange(len(where)), count // 2])
         sky = grids[-1][0].ravel()[where] <= _SKY_SIDE_OWN * medians[-1]
         for (_, out), middle in zip(grids, medians, strict=True):
             out.ravel()[where[sky]] = middle[sky]
