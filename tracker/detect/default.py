@@ -16,7 +16,9 @@ handled, sigma 3.5 px):
    Tiles across a body's edge (or with a sliver of it in their brightest
    tenth) take the sky's statistics from their darker part, and sky tiles
    beside a saturated one (lit ground, the Earth) keep their own level and
-   threshold rather than a blend with full scale.
+   threshold rather than a blend with full scale. Where such an edge tile's
+   darker part is sky, the 3x3 median of its filtered statistics (step 5) is
+   taken over its sky neighbours only, not over the ground's tiles below it.
 3. ``impulses``: hot pixels, cosmic-ray tracks and salt-and-pepper pixels,
    recognised by being much sharper than the sharpest PSF the detector
    handles (sigma 0.45 px), are replaced by their 3x3 median and counted
@@ -204,6 +206,8 @@ _SKY_RING_WIDTH = 2            # ... outward by this many pixels
 _TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is textured,
 _TEXTURED_SKY_SECTORS = 6      # ... and its candidates need this many sky sectors
 _TILE_NEIGHBOURS = np.ones((3, 3), np.uint8)
+_SKY_SIDE_OWN = 3.0            # a sky tile beside a body reading this x its sky neighbours holds
+                               # a sliver of the body (or a bright star): not smoothed over them
 _BROAD_SKY_SECTORS = 4         # a broad candidate needs this many sky sectors
 _LINE_MAX_ELLIPTICITY = 0.25   # a frame's PSF and spots rounder than this: a line is light
 _WING_LEVEL = 0.5              # a saturated star's wings are under this much of saturation
@@ -407,6 +411,11 @@ class DefaultDetector:
         self.textured = np.zeros(grid_shape, np.bool_)
         self.dark_side = np.zeros(grid_shape, np.bool_)
         self.beside_body = np.zeros(grid_shape, np.bool_)   # sky tiles beside a body's
+        self.near_body = np.zeros(grid_shape, np.bool_)     # bodies' tiles and their neighbours
+        self.sky_edge = np.zeros(grid_shape, np.bool_)   # edge tiles whose darker part is sky
+        self.sky_pad = np.zeros((grid_shape[0] + 2, grid_shape[1] + 2), np.float32)
+        self.sky_pad_offsets = (np.arange(-1, 2)[:, None] * self.sky_pad.shape[1]
+                                + np.arange(-1, 2)[None, :]).ravel()
         self.sky_model = (0.0, 0.0, 0.0)   # the frame's sky noise model (_mark_dark_side)
         self.noise_clips = False           # the sky's noise reaches full scale (_set_filter)
         self.near_texture = np.zeros(grid_shape, np.bool_)
@@ -651,7 +660,8 @@ class DefaultDetector:
         # the saturated level beyond the edge (beside glare's core the tiles are bright
         # themselves, and its gradient is followed)
         bright = (grid.level_raw >= _SATURATED_TILE * self.saturation).view(np.uint8)
-        cv2.dilate(bright, _TILE_NEIGHBOURS, dst=self.beside_body.view(np.uint8))
+        cv2.dilate(bright, _TILE_NEIGHBOURS, dst=self.near_body.view(np.uint8))
+        np.copyto(self.beside_body, self.near_body)
         self.beside_body &= grid.level_raw - level0 < _DARK_SIDE_SIGMAS * math.sqrt(var0)
         self.beside_body |= self.dark_side
         return bool(self.dark_side.any())
@@ -703,6 +713,12 @@ class DefaultDetector:
         grid.stats(self.filt_pad, self.residual, self.noise_f,
                    QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=True,
                    dark_side=self.dark_side if self.dark_side.any() else None)
+        np.subtract(self.level, self.sky_model[0], out=self.float_grid)
+        np.less(self.float_grid, _DARK_SIDE_SIGMAS * math.sqrt(self.sky_model[1]),
+                out=self.sky_edge)
+        self.sky_edge &= self.dark_side
+        if self.sky_edge.any():
+            self._sky_side_median(((grid.level_raw, self.residual), (grid.raw, self.noise_f)))
         self._tail_threshold()
         self._constant_sky()
         self._make_threshold(1.0)
@@ -1021,6 +1037,44 @@ class DefaultDetector:
             levels.ravel()[np.flatnonzero(at_floor)[steps == step]] = table[step]
         lower = levels < self.threshold_k * floor
         self.noise_f[lower] = levels[lower] / self.threshold_k
+
+    def _sky_side_median(self, grids: tuple[tuple[np.ndarray, np.ndarray], ...]) -> None:
+        """Each (raw, out) of ``grids`` (one value a tile, unsmoothed; the 3x3 median of
+        the grid stats): at the tiles across a body's edge whose darker part is sky
+        (``sky_edge``), ``out`` the median of ``raw`` over those of its 3x3 neighbours
+        that are sky too (beside a body or away from every body, not the body's own
+        tiles). The last pair is the noise:
+        a tile whose own noise is over ``_SKY_SIDE_OWN`` times that median holds a
+        sliver of the body or a bright star, and keeps the plain median in every grid.
+
+        The plain 3x3 median takes a sky tile beside lit ground as much from the
+        ground's tiles as from the sky's: under a horizon the filtered frame less
+        its interpolated background spreads by some 200 ADU where the sky's spreads
+        by 0.5, and a row of such tiles below a sky tile, with one straddling the
+        edge beside it, is the median's majority; the threshold there rose out of
+        reach of stars well above the horizon. Of an even count of sky neighbours
+        (common) the upper middle value is taken: with three or four of them the lower
+        one sets the threshold low often enough to let noise peaks through.
+        """
+        pad = self.sky_pad
+        where = np.flatnonzero(self.sky_edge)
+        rows, cols = np.divmod(where, self.sky_edge.shape[1])
+        around = (((rows + 1) * pad.shape[1] + cols + 1)[:, None]
+                  + self.sky_pad_offsets[None, :])
+        body = self.near_body & ~self.beside_body
+        medians = []
+        for raw, _ in grids:
+            pad.fill(np.nan)
+            inner = pad[1:-1, 1:-1]
+            np.copyto(inner, raw)
+            inner[body] = np.nan
+            values = pad.ravel()[around]
+            values.sort(axis=1)                       # not a number (a body's tile) last
+            count = np.count_nonzero(~np.isnan(values), axis=1)
+            medians.append(values[np.arange(len(where)), count // 2])
+        sky = grids[-1][0].ravel()[where] <= _SKY_SIDE_OWN * medians[-1]
+        for (_, out), middle in zip(grids, medians, strict=True):
+            out.ravel()[where[sky]] = middle[sky]
 
     def _make_threshold(self, factor: float) -> None:
         """Threshold image: background + level left + factor * threshold_k * noise."""
