@@ -306,6 +306,23 @@ def test_windows_that_do_not_verify_hand_the_frame_to_lost_in_space():
     assert attitude_error(r.solution.R, there.R)[0] < 10 * ARCSEC
 
 
+def test_frames_carry_their_cpu_time():
+    """Every frame reports its CPU time; a frame detected whole also its detector's (which
+    the frame's contains), a windowed frame only the whole frame's (FrameResult)."""
+    cfg, cat, rng = _sky(seed=11)
+    sky = render_sky(cfg.camera, cat, matrix_from_radec_roll(*np.radians((40, 20, 0))),
+                     cfg.sim, rng)
+    pipe = Pipeline(cfg)
+    results = [pipe.process(sky.image, 10, int(i * 1e8)) for i in range(4)]
+    assert results[0].windows == 0 and results[-1].windows > 0
+    for r in results:
+        assert r.cpu_ms > 0
+        if r.windows:
+            assert r.detect_cpu_ms is None
+        else:
+            assert 0 < r.detect_cpu_ms <= r.cpu_ms
+
+
 def test_windows_take_the_full_frames_psf_and_measure_it_in_turn():
     """The windows use the PSF the full frames measured; a change of focus reaches it
     within ``identify.track_lens_every`` windowed frames (their meter's turn), and

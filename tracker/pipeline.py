@@ -93,7 +93,16 @@ class FrameResult:
     ``solve_reason`` then says why (``"disabled"``, ``"frame_size"``).
     ``observer`` is the context the frame was processed with (what the
     solver corrected: ``observer.corrections``). ``windows``: how many
-    windows the frame was detected in (0: the whole frame).
+    windows the frame was detected in (0: the whole frame). ``time_ms`` is
+    wall time; ``cpu_ms`` the process's CPU time over the frame and, on a
+    frame detected whole, ``detect_cpu_ms`` over the full-frame detector's
+    call (None on a windowed frame: each CPU clock read is a system call,
+    and on a loaded machine a system call is a chance to be preempted and
+    come back to cold caches, so the windowed path reads the clock only at
+    its start and end), ms: every thread's, so the full-frame detector's
+    slab threads count, and so would another thread of the process running
+    meanwhile (benchmarks read them: a loaded machine inflates wall time
+    far more than CPU time).
     """
 
     detections: Detections
@@ -103,6 +112,13 @@ class FrameResult:
     solve_reason: str | None = None
     observer: Observer = Observer()
     windows: int = 0
+    cpu_ms: float = 0.0
+    detect_cpu_ms: float | None = None
+
+
+def _cpu_ms_since(c0: int) -> float:
+    """The process's CPU time (ns, time.process_time_ns) since ``c0``, in ms."""
+    return (time.process_time_ns() - c0) / 1e6
 
 
 class Pipeline:
@@ -250,6 +266,7 @@ class Pipeline:
         """
         observer = observer or Observer()
         t0 = time.perf_counter_ns()
+        c0 = time.process_time_ns()
         if isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] in (1, 3, 4):
             image = to_grey(image)
         shape = image.shape[:2] if image.ndim >= 2 else (0, 0)
@@ -257,10 +274,12 @@ class Pipeline:
                                                                   self.camera.width)
         exposure = self.cfg.capture.exposure_us / 1e6 if exposure_s is None else exposure_s
         if identify and self.cfg.identify.track_windows:
-            windowed = self._process_windows(image, bit_depth, t_ns, observer, exposure, t0)
+            windowed = self._process_windows(image, bit_depth, t_ns, observer, exposure, t0, c0)
             if windowed is not None:
                 return windowed
+        c1 = time.process_time_ns()
         detections = self.detector_for(shape, bit_depth).detect(image)
+        detect_cpu = _cpu_ms_since(c1)
         stages = {f"detect.{k}": v for k, v in detections.stages_ms.items()}
         solution, reason = None, None
         if not self.cfg.identify.enabled:
@@ -272,7 +291,8 @@ class Pipeline:
             solution = self.solve_stars(stars, t_ns, observer)
             stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})
         elapsed = (time.perf_counter_ns() - t0) / 1e6
-        return FrameResult(detections, solution, elapsed, stages, reason, observer)
+        return FrameResult(detections, solution, elapsed, stages, reason, observer,
+                           cpu_ms=_cpu_ms_since(c0), detect_cpu_ms=detect_cpu)
 
     def _untrailed(self, image: np.ndarray, stars: np.ndarray, t_ns: int, exposure_s: float,
                    stages: dict) -> np.ndarray:
@@ -297,8 +317,10 @@ class Pipeline:
         return stars
 
     def _process_windows(self, image: np.ndarray, bit_depth: int, t_ns: int,
-                         observer: Observer, exposure_s: float, t0: int) -> FrameResult | None:
-        """The frame tracked in windows (module docstring), or None to search it whole."""
+                         observer: Observer, exposure_s: float, t0: int,
+                         c0: int) -> FrameResult | None:
+        """The frame tracked in windows (module docstring), or None to search it whole;
+        ``t0`` and ``c0`` the frame's start in wall and process CPU time, ns."""
         if self._solver is None:
             return None
         self._follow_epoch(observer)
@@ -333,4 +355,4 @@ class Pipeline:
         stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})
         elapsed = (time.perf_counter_ns() - t0) / 1e6
         return FrameResult(detections, solution, elapsed, stages, None, observer,
-                           windows=len(plan.origins))
+                           windows=len(plan.origins), cpu_ms=_cpu_ms_since(c0))

@@ -20,7 +20,16 @@ until tracking again after the dark frame, cross-boresight and roll RMS and
 the rate's RMS error against the truth over the tracked frames, and per frame
 ms: the full arm's detection and the windowed arm's whole frame (windows'
 detection and identification). The cost ratio is the median windowed frame
-over the median full-frame detection of the same frames. sep and tetra3
+over the median full-frame detection of the same frames (wall time). Two
+more readings of it, added because the full-frame detector's two slab
+threads read faster or slower with the host's load while the windowed
+path's single thread moves much less: the paired ratio, the median over
+frames of each frame's windowed time over its own full-frame detection
+(the two run back to back on that frame, so a drift of the machine meets
+both alike), and the CPU ratio, the median windowed frame's process CPU
+time over the median full-frame detection's (tracker.pipeline.FrameResult:
+every thread's, so the detector's second slab thread counts as work even
+when it ran in parallel; waiting for a core does not count). sep and tetra3
 detect the first ``--peer-frames`` frames of each scenario for scale.
 
 ``--memory-frames`` (0: skip) runs the whole service (tracker run's Daemon:
@@ -109,6 +118,8 @@ def _arm_stats(rows: list[dict], dark: int) -> dict:
                            if len(rate_err) else None),
         "rate_sigma_median_deg_s": (np.median(sigma, axis=0).tolist() if len(sigma) else None),
         "frame_ms_median": float(np.median([r["ms"] for r in tracked])) if tracked else math.nan,
+        "frame_cpu_ms_median": (float(np.median([r["cpu_ms"] for r in tracked]))
+                                if tracked else math.nan),
         "detect_ms_median": (float(np.median([r["detect_ms"] for r in tracked]))
                              if tracked else math.nan),
         "identify_ms_median": (float(np.median([r["identify_ms"] for r in tracked]))
@@ -122,6 +133,7 @@ def _row(i: int, result, R_true, rate_deg_s) -> dict:
     identify = sum(v for k, v in result.stages_ms.items() if k.startswith("identify."))
     row = {"i": i, "ok": bool(sol is not None and sol.ok), "mode": None, "windows": result.windows,
            "ms": result.time_ms, "detect_ms": detect, "identify_ms": identify,
+           "cpu_ms": result.cpu_ms, "detect_cpu_ms": result.detect_cpu_ms,
            "stars": int(result.detections.count), "rate_err_deg_s": None,
            "rate_sigma_deg_s": None, "stages_ms": dict(result.stages_ms)}
     if row["ok"]:
@@ -167,12 +179,19 @@ def run_scenario(cfg: Config, catalogue, lens_mm: float, rate: float, seconds: f
                 PEERS[name](image)
                 peers[name].append((time.perf_counter() - t0) * 1e3)
     stats = {arm: _arm_stats(rows[arm], dark) for arm in ARMS}
-    full_detect = float(np.median([r["detect_ms"] for r in rows["full"] if r["i"] >= 3]))
+    full_rows = [r for r in rows["full"] if r["i"] >= 3]
+    full_detect = float(np.median([r["detect_ms"] for r in full_rows]))
+    full_detect_cpu = float(np.median([r["detect_cpu_ms"] for r in full_rows]))
+    paired = [w["ms"] / f["detect_ms"] for w, f in zip(rows["windows"], rows["full"], strict=True)
+              if w["i"] >= 3 and w["mode"] == "tracking" and f["detect_ms"] > 0]
     return {"lens_mm": lens_mm, "rate_deg_s": rate, "seconds": seconds, "frames": n,
             "dark_frame": dark, "psf_sigma_px": psf,
             "focal_length_mm": seen_lens.focal_length_mm, "rate_vector_deg_s":
             rate_deg_s.tolist(), "full_detect_ms_median": full_detect,
+            "full_detect_cpu_ms_median": full_detect_cpu,
             "cost_ratio": stats["windows"]["frame_ms_median"] / full_detect,
+            "paired_ratio_median": float(np.median(paired)) if paired else math.nan,
+            "cpu_ratio": stats["windows"]["frame_cpu_ms_median"] / full_detect_cpu,
             "detect_ratio": stats["windows"]["detect_ms_median"] / full_detect,
             "peers_ms_median": {k: float(np.median(v)) for k, v in peers.items() if v},
             "stats": stats, "rows": rows}
@@ -251,15 +270,18 @@ def _markdown(machine: dict, args, results: list[dict], memory: dict | None) -> 
                 f" | {rate} | {_fmt(s['frame_ms_median'], '.2f')} | "
                 f"{_fmt(s['detect_ms_median'], '.2f')} |")
     lines += ["", "| lens | rate deg/s | full-frame detection ms | windowed frame ms | "
-              "ratio | windows' detection / full | windowed / full cross, roll RMS | "
-              "peers ms (full frame) |", "|---|---|---|---|---|---|---|---|"]
+              "ratio | windows' detection / full | paired ratio | CPU ms: full detection, "
+              "windowed | CPU ratio | windowed / full cross, roll RMS | peers ms (full frame) |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         w, f = r["stats"]["windows"], r["stats"]["full"]
         peers = ", ".join(f"{k} {v:.1f}" for k, v in r["peers_ms_median"].items()) or "-"
         lines.append(
             f"| {r['lens_mm']:g} mm | {r['rate_deg_s']:g} | {r['full_detect_ms_median']:.2f} | "
             f"{_fmt(w['frame_ms_median'], '.2f')} | 1/{1 / r['cost_ratio']:.1f} | "
-            f"1/{1 / r['detect_ratio']:.1f} | "
+            f"1/{1 / r['detect_ratio']:.1f} | 1/{1 / r['paired_ratio_median']:.1f} | "
+            f"{r['full_detect_cpu_ms_median']:.2f}, {_fmt(w['frame_cpu_ms_median'], '.2f')} | "
+            f"1/{1 / r['cpu_ratio']:.1f} | "
             f"{w['cross_rms_arcsec'] / f['cross_rms_arcsec']:.2f}, "
             f"{w['roll_rms_arcsec'] / f['roll_rms_arcsec']:.2f} | {peers} |")
     if memory is not None:
