@@ -29,7 +29,9 @@ frames of each frame's windowed time over its own full-frame detection
 both alike), and the CPU ratio, the median windowed frame's process CPU
 time over the median full-frame detection's (tracker.pipeline.FrameResult:
 every thread's, so the detector's second slab thread counts as work even
-when it ran in parallel; waiting for a core does not count). sep and tetra3
+when it ran in parallel; waiting for a core does not count; the clock is
+read around the detector's whole call, where the wall figure sums its
+stages). sep and tetra3
 detect the first ``--peer-frames`` frames of each scenario for scale.
 
 ``--memory-frames`` (0: skip) runs the whole service (tracker run's Daemon:
