@@ -18,6 +18,10 @@ otherwise it is a bump on the brighter star's profile and is dropped.
 Kept candidates with another kept candidate within ``radius`` are marked
 blended.
 
+The local-maximum test reads each pixel's two row neighbours first: a
+smooth filtered image has about one row maximum per row of a star's
+image, so only those few read the six pixels of the rows above and below.
+
 Only pixels above the threshold are visited (gathered into buffers of
 ``pixel_capacity`` entries). When more pixels than that exceed it (a frame
 washed by light), the threshold is doubled until they fit and the frame is
@@ -35,8 +39,10 @@ from tracker.detect.slabs import SlabRunner
 
 __all__ = ["PeakFinder"]
 
-_ORDER = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
-_BEFORE = 4
+# the rows above and below a pixel (the three before it in raster order, then the three
+# after); its own row's two neighbours are read first, at offsets -1 and +1
+_ACROSS = ((-1, -1), (-1, 0), (-1, 1), (1, -1), (1, 0), (1, 1))
+_BEFORE = 3
 _LINE_STEPS = (0.25, 0.5, 0.75)
 _MAX_DOUBLINGS = 12
 _NONE = np.iinfo(np.int32).max
@@ -62,13 +68,20 @@ class PeakFinder:
         self.mask_pad, self.mask = layout.buffer(np.uint8)
         self.pixels = np.zeros(self.pixel_capacity, np.intp)
         self.pixel_values = np.zeros(self.pixel_capacity, dtype)
-        self.neighbour_index = np.zeros((self.pixel_capacity, 8), np.intp)
-        self.neighbours = np.zeros((self.pixel_capacity, 8), dtype)
+        self.positions = np.arange(self.pixel_capacity, dtype=np.intp)
+        self.side_index = np.zeros(self.pixel_capacity, np.intp)
+        self.side = np.zeros(self.pixel_capacity, dtype)
+        self.row_max = np.zeros(self.pixel_capacity, np.intp)   # positions among pixels
+        self.row_max_index = np.zeros(self.pixel_capacity, np.intp)
+        self.row_max_values = np.zeros(self.pixel_capacity, dtype)
+        self.neighbour_index = np.zeros((self.pixel_capacity, len(_ACROSS)), np.intp)
+        self.neighbours = np.zeros((self.pixel_capacity, len(_ACROSS)), dtype)
         self.before = np.zeros(self.pixel_capacity, dtype)
         self.after = np.zeros(self.pixel_capacity, dtype)
         self.is_max = np.zeros(self.pixel_capacity, np.bool_)
         self.tmp = np.zeros(self.pixel_capacity, np.bool_)
-        self.offsets8 = np.array([dy * self.stride + dx for dy, dx in _ORDER], np.intp)
+        self.below = np.zeros(self.pixel_capacity, np.bool_)
+        self.offsets_across = np.array([dy * self.stride + dx for dy, dx in _ACROSS], np.intp)
         self.rank = np.zeros(layout.full_shape[0] * self.stride, np.int32)
         self.cand = np.zeros(self.capacity, np.intp)
         self.cand_values = np.zeros(self.capacity, np.float32)
@@ -166,25 +179,45 @@ class PeakFinder:
         return n
 
     def _local_maxima(self, n: int, filt_pad: np.ndarray) -> int:
+        """Mark in ``is_max[:n]`` the pixels above their four neighbours before them in
+        raster order and not below the four after; returns how many. The row's two
+        first, then the rows above and below for the maxima along the row alone."""
         if n == 0:
             return 0
         flat = filt_pad.ravel()
         idx = self.pixels[:n]
         v = self.pixel_values[:n]
         np.take(flat, idx, out=v, mode="clip")
-        nb_index = self.neighbour_index[:n]
-        np.add(idx[:, None], self.offsets8[None, :], out=nb_index)
-        nb = self.neighbours[:n]
+        is_max, tmp = self.is_max[:n], self.tmp[:n]
+        side_index, side = self.side_index[:n], self.side[:n]
+        np.subtract(idx, 1, out=side_index)
+        np.take(flat, side_index, out=side, mode="clip")
+        np.greater(v, side, out=is_max)
+        np.add(idx, 1, out=side_index)
+        np.take(flat, side_index, out=side, mode="clip")
+        np.greater_equal(v, side, out=tmp)
+        np.logical_and(is_max, tmp, out=is_max)
+        m = int(np.count_nonzero(is_max))
+        if m == 0:
+            return 0
+        along = self.row_max[:m]
+        np.compress(is_max, self.positions[:n], out=along)
+        at, values = self.row_max_index[:m], self.row_max_values[:m]
+        np.take(idx, along, out=at, mode="clip")
+        np.take(v, along, out=values, mode="clip")
+        nb_index = self.neighbour_index[:m]
+        np.add(at[:, None], self.offsets_across[None, :], out=nb_index)
+        nb = self.neighbours[:m]
         np.take(flat, nb_index, out=nb, mode="clip")
-        before, after = self.before[:n], self.after[:n]
+        before, after = self.before[:m], self.after[:m]
         np.max(nb[:, :_BEFORE], axis=1, out=before)
         np.max(nb[:, _BEFORE:], axis=1, out=after)
-        is_max, tmp = self.is_max[:n], self.tmp[:n]
-        np.greater(v, before, out=is_max)
-        np.greater_equal(v, after, out=tmp)
-        np.logical_and(is_max, tmp, out=is_max)
-        return int(np.count_nonzero(is_max))
-
+        found, below = self.tmp[:m], self.below[:m]
+        np.greater(values, before, out=found)
+        np.greater_equal(values, after, out=below)
+        np.logical_and(found, below, out=found)
+        np.put(is_max, along, found)
+        return int(np.count_nonzero(found))
     def _rank(self, m: int, bg_pad: np.ndarray, noise_at) -> int:
         """Maxima sorted by filtered value above the background, brightest first.
 
