@@ -42,3 +42,22 @@ def test_local_maxima_are_those_of_the_raster_order_definition_plateaus_included
     assert m == int(expected.sum()) > 10
     assert np.array_equal(found, expected)
     assert found[20, 30] and found[20:23, 30:34].sum() == 1
+
+
+def test_pairs_are_every_pair_of_candidates_within_the_radius():
+    rng = np.random.default_rng(8)
+    layout = PaddedLayout((200, 300), 30)
+    finder = PeakFinder(layout, 12, 3.0, 4096, 512)
+    n = 400
+    rows, cols = rng.integers(0, 200, n), rng.integers(0, 300, n)
+    flat = np.unique(layout.flat_index(rows, cols))
+    rng.shuffle(flat)                                  # ranked by brightness, not place
+    n = len(flat)
+    finder.cand[:n] = flat
+    i, j = finder._pairs(n)
+    r, c = layout.frame_position(flat)
+    d2 = (r[:, None] - r[None, :]) ** 2 + (c[:, None] - c[None, :]) ** 2
+    expected = set(zip(*np.nonzero((d2 <= 144) & ~np.eye(n, dtype=bool)), strict=True))
+    assert len(expected) > 100
+    assert set(zip(i.tolist(), j.tolist(), strict=True)) == expected
+    assert len(i) == len(expected)

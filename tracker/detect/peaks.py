@@ -58,7 +58,7 @@ class PeakFinder:
 
     def __init__(self, layout: PaddedLayout, radius: int, dip_sigma: float,
                  pixel_capacity: int, capacity: int, slabs: SlabRunner | None = None,
-                 dtype: type = np.float32, max_radius: int = 0) -> None:
+                 dtype: type = np.float32) -> None:
         self.slabs = slabs or SlabRunner(layout.rows, layout.cols, 0, 1, np.float32)
         self.layout = layout
         self.stride = layout.stride
@@ -82,62 +82,30 @@ class PeakFinder:
         self.tmp = np.zeros(self.pixel_capacity, np.bool_)
         self.below = np.zeros(self.pixel_capacity, np.bool_)
         self.offsets_across = np.array([dy * self.stride + dx for dy, dx in _ACROSS], np.intp)
-        self.rank = np.zeros(layout.full_shape[0] * self.stride, np.int32)
         self.cand = np.zeros(self.capacity, np.intp)
         self.cand_values = np.zeros(self.capacity, np.float32)
         self.cand_noise = np.zeros(self.capacity, np.float32)
         self.cand_bg = np.zeros(self.capacity, np.float32)
+        self.cand_rows = np.zeros(self.capacity, np.intp)
+        self.cand_cols = np.zeros(self.capacity, np.intp)
+        self.by_row = np.zeros(self.capacity, np.intp)     # candidates in raster order
+        self.sorted_rows = np.zeros(self.capacity, np.intp)
+        self.band_start = np.zeros(self.capacity, np.intp)
+        self.band_end = np.zeros(self.capacity, np.intp)
         self.nearest = np.zeros(self.capacity, np.intp)
+        self.has = np.zeros(self.capacity, np.bool_)
         self.line_index = np.zeros((self.capacity, len(_LINE_STEPS)), np.intp)
         self.line_values = np.zeros((self.capacity, len(_LINE_STEPS)), dtype)
         self.saddle = np.zeros(self.capacity, np.float32)
         self.keep = np.zeros(self.capacity, np.bool_)
         self.blended = np.zeros(self.capacity, np.bool_)
-        self.ranks = np.arange(1, self.capacity + 1, dtype=np.int32)
         self.crowded = False
         self._n_pixels = 0
-        self.radius = -1
-        self._pair_room = 0
-        self._reach = -1
-        self._neighbourhood(max(int(radius), int(max_radius)))
-        self.configure(radius)
-
-    def _neighbourhood(self, radius: int) -> None:
-        """Every offset within ``radius`` px (the centre left out), nearest first, with
-        the line samples to it: the pairs of any radius up to it are their first ones."""
-        dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
-        keep = (dy ** 2 + dx ** 2 <= radius ** 2) & ((dy != 0) | (dx != 0))
-        dy, dx = dy[keep], dx[keep]
-        order = np.argsort(dy ** 2 + dx ** 2, kind="stable")
-        dy, dx = dy[order], dx[order]
-        self._distance2 = dy ** 2 + dx ** 2
-        self._offsets = (dy * self.stride + dx).astype(np.intp)
-        line = [np.rint(t * dy) * self.stride + np.rint(t * dx) for t in _LINE_STEPS]
-        self._lines = np.stack(line, axis=1).astype(np.intp)  # (P, 3)
-        self._reach = radius
+        self.radius = int(radius)
 
     def configure(self, radius: int) -> None:
-        """Pairs: candidates closer than ``radius`` px (kept between frames if unchanged).
-
-        A neighbour's order among the pairs decides nothing (each candidate's
-        brighter neighbour is the one ranked first, ranks being distinct), so
-        the neighbourhood made for the widest radius serves every narrower one.
-        """
-        radius = int(radius)
-        if radius == self.radius:
-            return
-        self.radius = radius
-        if radius > self._reach:
-            self._neighbourhood(radius)
-        p = int(np.searchsorted(self._distance2, radius * radius, side="right"))
-        self.pair_offsets = self._offsets[:p]
-        self.line_offsets = self._lines[:p]
-        if p > self._pair_room:   # buffers grow to the widest radius used, never shrink
-            self._pair_room = p
-            self._pair_index = np.zeros(self.capacity * p, np.intp)
-            self._pair_rank = np.zeros(self.capacity * p, np.int32)
-        self.pair_index = self._pair_index[: self.capacity * p].reshape(self.capacity, p)
-        self.pair_rank = self._pair_rank[: self.capacity * p].reshape(self.capacity, p)
+        """Pairs: candidates closer than ``radius`` px."""
+        self.radius = int(radius)
 
     def find(self, filt_pad: np.ndarray, filt: np.ndarray, threshold: np.ndarray,
              bg_pad: np.ndarray, raise_threshold, noise_at) -> int:
@@ -239,25 +207,54 @@ class PeakFinder:
         noise_at(self.cand[:n], self.cand_noise[:n])
         return n
 
+    def _pairs(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Every ordered pair (i, j), i != j, of ``cand[:n]`` within ``radius`` px.
+
+        Candidates in raster order, each paired with those whose rows lie
+        within ``radius`` of its own (a band found by bisection), then cut to
+        the circle: work in proportion to the candidates near each other, not
+        to the circle's area per candidate. Temporaries are of that size.
+        """
+        cand, r = self.cand[:n], self.radius
+        rows, cols = self.cand_rows[:n], self.cand_cols[:n]
+        np.divmod(cand, self.stride, out=(rows, cols))
+        by_row, sorted_rows = self.by_row[:n], self.sorted_rows[:n]
+        by_row[:] = np.argsort(cand, kind="stable")
+        np.take(rows, by_row, out=sorted_rows)
+        start, end = self.band_start[:n], self.band_end[:n]
+        start[:] = np.searchsorted(sorted_rows, sorted_rows - r, side="left")
+        end[:] = np.searchsorted(sorted_rows, sorted_rows + r, side="right")
+        counts = end - start
+        first = np.cumsum(counts) - counts
+        partner = np.arange(int(counts.sum())) + np.repeat(start - first, counts)
+        i = np.repeat(by_row, counts)
+        j = by_row[partner]
+        dy, dx = rows[j] - rows[i], cols[j] - cols[i]
+        near = (dy * dy + dx * dx <= r * r) & (i != j)
+        return i[near], j[near]
+
     def _deblend(self, n: int, filt_pad: np.ndarray) -> int:
-        """Drop bumps on brighter stars; mark close pairs blended; compact; returns count."""
+        """Drop bumps on brighter stars; mark close pairs blended; compact; returns count.
+
+        Candidates are ranked brightest first, so of a candidate's pairs those
+        with a lower index are the brighter, and the lowest is the brightest.
+        """
         if n == 0:
             return 0
         cand = self.cand[:n]
-        rank = self.rank
-        np.put(rank, cand, self.ranks[:n], mode="clip")
-        pair_index = self.pair_index[:n]
-        np.add(cand[:, None], self.pair_offsets[None, :], out=pair_index)
-        pr = self.pair_rank[:n]
-        np.take(rank, pair_index, out=pr, mode="clip")
-        # a neighbour counts if it is a candidate (rank > 0) ranked before this one
-        not_brighter = (pr == 0) | (pr >= self.ranks[:n, None])
-        np.copyto(pr, _NONE, where=not_brighter)
-        nearest = self.nearest[:n]
-        np.argmin(pr, axis=1, out=nearest)
-        has = pr[np.arange(n), nearest] != _NONE
+        i, j = self._pairs(n)
+        brighter = j < i
+        nearest, has = self.nearest[:n], self.has[:n]
+        nearest.fill(n)
+        np.minimum.at(nearest, i[brighter], j[brighter])
+        np.less(nearest, n, out=has)
+        np.copyto(nearest, np.arange(n), where=~has)   # a line to itself: kept anyway
+        rows, cols = self.cand_rows[:n], self.cand_cols[:n]
+        dy, dx = rows[nearest] - rows, cols[nearest] - cols
         line_index = self.line_index[:n]
-        np.add(cand[:, None], self.line_offsets[nearest], out=line_index)
+        for k, t in enumerate(_LINE_STEPS):
+            line_index[:, k] = (cand + np.rint(t * dy) * self.stride
+                                + np.rint(t * dx)).astype(np.intp)
         line = self.line_values[:n]
         np.take(filt_pad.ravel(), line_index, out=line, mode="clip")
         saddle = self.saddle[:n]
@@ -269,11 +266,8 @@ class PeakFinder:
         np.greater_equal(values - saddle, self.dip_sigma * noise, out=keep)
         np.logical_or(keep, ~has, out=keep)
         # blended: another kept candidate within the radius
-        np.put(rank, cand, keep.view(np.uint8), mode="clip")
-        np.take(rank, pair_index, out=pr, mode="clip")
-        np.put(rank, cand, 0, mode="clip")
         blended = self.blended[:n]
-        np.greater(np.max(pr, axis=1), 0, out=blended)
+        np.greater(np.bincount(i, weights=keep[j], minlength=n), 0, out=blended)
         k = int(np.count_nonzero(keep))
         for arr in (self.cand, self.cand_values, self.cand_noise, self.blended):
             arr[:k] = np.compress(keep, arr[:n])
