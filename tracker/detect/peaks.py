@@ -45,7 +45,6 @@ _ACROSS = ((-1, -1), (-1, 0), (-1, 1), (1, -1), (1, 0), (1, 1))
 _BEFORE = 3
 _LINE_STEPS = (0.25, 0.5, 0.75)
 _MAX_DOUBLINGS = 12
-_NONE = np.iinfo(np.int32).max
 
 
 class PeakFinder:
@@ -72,8 +71,6 @@ class PeakFinder:
         self.side_index = np.zeros(self.pixel_capacity, np.intp)
         self.side = np.zeros(self.pixel_capacity, dtype)
         self.row_max = np.zeros(self.pixel_capacity, np.intp)   # positions among pixels
-        self.row_max_index = np.zeros(self.pixel_capacity, np.intp)
-        self.row_max_values = np.zeros(self.pixel_capacity, dtype)
         self.neighbour_index = np.zeros((self.pixel_capacity, len(_ACROSS)), np.intp)
         self.neighbours = np.zeros((self.pixel_capacity, len(_ACROSS)), dtype)
         self.before = np.zeros(self.pixel_capacity, dtype)
@@ -170,7 +167,7 @@ class PeakFinder:
             return 0
         along = self.row_max[:m]
         np.compress(is_max, self.positions[:n], out=along)
-        at, values = self.row_max_index[:m], self.row_max_values[:m]
+        at, values = self.side_index[:m], self.side[:m]     # free once the row is read
         np.take(idx, along, out=at, mode="clip")
         np.take(v, along, out=values, mode="clip")
         nb_index = self.neighbour_index[:m]
@@ -186,6 +183,7 @@ class PeakFinder:
         np.logical_and(found, below, out=found)
         np.put(is_max, along, found)
         return int(np.count_nonzero(found))
+
     def _rank(self, m: int, bg_pad: np.ndarray, noise_at) -> int:
         """Maxima sorted by filtered value above the background, brightest first.
 
