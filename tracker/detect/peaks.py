@@ -85,10 +85,8 @@ class PeakFinder:
         self.cand_bg = np.zeros(self.capacity, np.float32)
         self.cand_rows = np.zeros(self.capacity, np.intp)
         self.cand_cols = np.zeros(self.capacity, np.intp)
-        self.by_row = np.zeros(self.capacity, np.intp)     # candidates in raster order
-        self.sorted_rows = np.zeros(self.capacity, np.intp)
-        self.band_start = np.zeros(self.capacity, np.intp)
-        self.band_end = np.zeros(self.capacity, np.intp)
+        self.by_flat = np.zeros(self.capacity, np.intp)    # candidates in raster order
+        self.sorted_flat = np.zeros(self.capacity, np.intp)
         self.nearest = np.zeros(self.capacity, np.intp)
         self.has = np.zeros(self.capacity, np.bool_)
         self.line_index = np.zeros((self.capacity, len(_LINE_STEPS)), np.intp)
@@ -208,28 +206,27 @@ class PeakFinder:
     def _pairs(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Every ordered pair (i, j), i != j, of ``cand[:n]`` within ``radius`` px.
 
-        Candidates in raster order, each paired with those whose rows lie
-        within ``radius`` of its own (a band found by bisection), then cut to
-        the circle: work in proportion to the candidates near each other, not
-        to the circle's area per candidate. Temporaries are of that size.
+        Candidates in raster order; for each candidate and each row offset dy
+        within the radius, the run of candidates on that row within
+        sqrt(radius^2 - dy^2) columns is found by bisection (the padding is
+        wider than the radius, so a run never reaches into another row): work
+        in proportion to the candidates times the rows of the circle, plus the
+        pairs found, not to the circle's area. Temporaries are of that size.
         """
         cand, r = self.cand[:n], self.radius
-        rows, cols = self.cand_rows[:n], self.cand_cols[:n]
-        np.divmod(cand, self.stride, out=(rows, cols))
-        by_row, sorted_rows = self.by_row[:n], self.sorted_rows[:n]
-        by_row[:] = np.argsort(cand, kind="stable")
-        np.take(rows, by_row, out=sorted_rows)
-        start, end = self.band_start[:n], self.band_end[:n]
-        start[:] = np.searchsorted(sorted_rows, sorted_rows - r, side="left")
-        end[:] = np.searchsorted(sorted_rows, sorted_rows + r, side="right")
-        counts = end - start
+        by_flat, sorted_flat = self.by_flat[:n], self.sorted_flat[:n]
+        by_flat[:] = np.argsort(cand, kind="stable")
+        np.take(cand, by_flat, out=sorted_flat)
+        dy = np.arange(-r, r + 1)
+        reach = np.floor(np.sqrt(r * r - dy * dy)).astype(np.intp)
+        centre = cand[:, None] + (dy * self.stride)[None, :]
+        start = np.searchsorted(sorted_flat, centre - reach, side="left").ravel()
+        counts = np.searchsorted(sorted_flat, centre + reach, side="right").ravel() - start
         first = np.cumsum(counts) - counts
-        partner = np.arange(int(counts.sum())) + np.repeat(start - first, counts)
-        i = np.repeat(by_row, counts)
-        j = by_row[partner]
-        dy, dx = rows[j] - rows[i], cols[j] - cols[i]
-        near = (dy * dy + dx * dx <= r * r) & (i != j)
-        return i[near], j[near]
+        j = by_flat[np.arange(int(counts.sum())) + np.repeat(start - first, counts)]
+        i = np.repeat(np.arange(n), counts.reshape(n, -1).sum(axis=1))
+        other = i != j
+        return i[other], j[other]
 
     def _deblend(self, n: int, filt_pad: np.ndarray) -> int:
         """Drop bumps on brighter stars; mark close pairs blended; compact; returns count.
@@ -248,6 +245,7 @@ class PeakFinder:
         np.less(nearest, n, out=has)
         np.copyto(nearest, np.arange(n), where=~has)   # a line to itself: kept anyway
         rows, cols = self.cand_rows[:n], self.cand_cols[:n]
+        np.divmod(cand, self.stride, out=(rows, cols))
         dy, dx = rows[nearest] - rows, cols[nearest] - cols
         line_index = self.line_index[:n]
         for k, t in enumerate(_LINE_STEPS):
