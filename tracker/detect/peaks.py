@@ -96,10 +96,13 @@ class PeakFinder:
         self.blended = np.zeros(self.capacity, np.bool_)
         self.crowded = False
         self._n_pixels = 0
-        self.radius = int(radius)
+        self.configure(radius)
 
     def configure(self, radius: int) -> None:
-        """Pairs: candidates closer than ``radius`` px."""
+        """Pairs: candidates closer than ``radius`` px (less than the layout's padding)."""
+        if int(radius) >= self.layout.pad:
+            raise ValueError(f"pair radius {radius} px reaches beyond the padding "
+                             f"({self.layout.pad} px)")
         self.radius = int(radius)
 
     def find(self, filt_pad: np.ndarray, filt: np.ndarray, threshold: np.ndarray,
