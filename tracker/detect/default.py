@@ -356,8 +356,7 @@ class DefaultDetector:
         self.filter_slabs = SlabRunner(layout.rows, layout.cols, _kernel_half(SIGMA_MAX_PX),
                                        cfg.threads, np.float32)
         self.peaks = PeakFinder(layout, 1, cfg.deblend_dip_sigma, cfg.max_pixels_above,
-                                cfg.max_candidates, slabs=self.filter_slabs,
-                                max_radius=max_blend)
+                                cfg.max_candidates, slabs=self.filter_slabs)
         self.bright = PeakFinder(layout, psf_radius, cfg.deblend_dip_sigma, _PSF_PIXELS,
                                  _PSF_PEAKS, slabs=self.filter_slabs, dtype=np.uint16)
         self.psf_values = np.zeros(_PSF_PEAKS, np.float32)

@@ -18,6 +18,10 @@ otherwise it is a bump on the brighter star's profile and is dropped.
 Kept candidates with another kept candidate within ``radius`` are marked
 blended.
 
+The local-maximum test reads each pixel's two row neighbours first: a
+smooth filtered image has about one row maximum per row of a star's
+image, so only those few read the six pixels of the rows above and below.
+
 Only pixels above the threshold are visited (gathered into buffers of
 ``pixel_capacity`` entries). When more pixels than that exceed it (a frame
 washed by light), the threshold is doubled until they fit and the frame is
@@ -35,11 +39,12 @@ from tracker.detect.slabs import SlabRunner
 
 __all__ = ["PeakFinder"]
 
-_ORDER = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
-_BEFORE = 4
+# the rows above and below a pixel (the three before it in raster order, then the three
+# after); its own row's two neighbours are read first, at offsets -1 and +1
+_ACROSS = ((-1, -1), (-1, 0), (-1, 1), (1, -1), (1, 0), (1, 1))
+_BEFORE = 3
 _LINE_STEPS = (0.25, 0.5, 0.75)
 _MAX_DOUBLINGS = 12
-_NONE = np.iinfo(np.int32).max
 
 
 class PeakFinder:
@@ -52,7 +57,7 @@ class PeakFinder:
 
     def __init__(self, layout: PaddedLayout, radius: int, dip_sigma: float,
                  pixel_capacity: int, capacity: int, slabs: SlabRunner | None = None,
-                 dtype: type = np.float32, max_radius: int = 0) -> None:
+                 dtype: type = np.float32) -> None:
         self.slabs = slabs or SlabRunner(layout.rows, layout.cols, 0, 1, np.float32)
         self.layout = layout
         self.stride = layout.stride
@@ -62,69 +67,43 @@ class PeakFinder:
         self.mask_pad, self.mask = layout.buffer(np.uint8)
         self.pixels = np.zeros(self.pixel_capacity, np.intp)
         self.pixel_values = np.zeros(self.pixel_capacity, dtype)
-        self.neighbour_index = np.zeros((self.pixel_capacity, 8), np.intp)
-        self.neighbours = np.zeros((self.pixel_capacity, 8), dtype)
+        self.positions = np.arange(self.pixel_capacity, dtype=np.intp)
+        self.side_index = np.zeros(self.pixel_capacity, np.intp)
+        self.side = np.zeros(self.pixel_capacity, dtype)
+        self.row_max = np.zeros(self.pixel_capacity, np.intp)   # positions among pixels
+        self.neighbour_index = np.zeros((self.pixel_capacity, len(_ACROSS)), np.intp)
+        self.neighbours = np.zeros((self.pixel_capacity, len(_ACROSS)), dtype)
         self.before = np.zeros(self.pixel_capacity, dtype)
         self.after = np.zeros(self.pixel_capacity, dtype)
         self.is_max = np.zeros(self.pixel_capacity, np.bool_)
         self.tmp = np.zeros(self.pixel_capacity, np.bool_)
-        self.offsets8 = np.array([dy * self.stride + dx for dy, dx in _ORDER], np.intp)
-        self.rank = np.zeros(layout.full_shape[0] * self.stride, np.int32)
+        self.below = np.zeros(self.pixel_capacity, np.bool_)
+        self.offsets_across = np.array([dy * self.stride + dx for dy, dx in _ACROSS], np.intp)
         self.cand = np.zeros(self.capacity, np.intp)
         self.cand_values = np.zeros(self.capacity, np.float32)
         self.cand_noise = np.zeros(self.capacity, np.float32)
         self.cand_bg = np.zeros(self.capacity, np.float32)
+        self.cand_rows = np.zeros(self.capacity, np.intp)
+        self.cand_cols = np.zeros(self.capacity, np.intp)
+        self.by_flat = np.zeros(self.capacity, np.intp)    # candidates in raster order
+        self.sorted_flat = np.zeros(self.capacity, np.intp)
         self.nearest = np.zeros(self.capacity, np.intp)
+        self.has = np.zeros(self.capacity, np.bool_)
         self.line_index = np.zeros((self.capacity, len(_LINE_STEPS)), np.intp)
         self.line_values = np.zeros((self.capacity, len(_LINE_STEPS)), dtype)
         self.saddle = np.zeros(self.capacity, np.float32)
         self.keep = np.zeros(self.capacity, np.bool_)
         self.blended = np.zeros(self.capacity, np.bool_)
-        self.ranks = np.arange(1, self.capacity + 1, dtype=np.int32)
         self.crowded = False
         self._n_pixels = 0
-        self.radius = -1
-        self._pair_room = 0
-        self._reach = -1
-        self._neighbourhood(max(int(radius), int(max_radius)))
         self.configure(radius)
 
-    def _neighbourhood(self, radius: int) -> None:
-        """Every offset within ``radius`` px (the centre left out), nearest first, with
-        the line samples to it: the pairs of any radius up to it are their first ones."""
-        dy, dx = np.mgrid[-radius:radius + 1, -radius:radius + 1]
-        keep = (dy ** 2 + dx ** 2 <= radius ** 2) & ((dy != 0) | (dx != 0))
-        dy, dx = dy[keep], dx[keep]
-        order = np.argsort(dy ** 2 + dx ** 2, kind="stable")
-        dy, dx = dy[order], dx[order]
-        self._distance2 = dy ** 2 + dx ** 2
-        self._offsets = (dy * self.stride + dx).astype(np.intp)
-        line = [np.rint(t * dy) * self.stride + np.rint(t * dx) for t in _LINE_STEPS]
-        self._lines = np.stack(line, axis=1).astype(np.intp)  # (P, 3)
-        self._reach = radius
-
     def configure(self, radius: int) -> None:
-        """Pairs: candidates closer than ``radius`` px (kept between frames if unchanged).
-
-        A neighbour's order among the pairs decides nothing (each candidate's
-        brighter neighbour is the one ranked first, ranks being distinct), so
-        the neighbourhood made for the widest radius serves every narrower one.
-        """
-        radius = int(radius)
-        if radius == self.radius:
-            return
-        self.radius = radius
-        if radius > self._reach:
-            self._neighbourhood(radius)
-        p = int(np.searchsorted(self._distance2, radius * radius, side="right"))
-        self.pair_offsets = self._offsets[:p]
-        self.line_offsets = self._lines[:p]
-        if p > self._pair_room:   # buffers grow to the widest radius used, never shrink
-            self._pair_room = p
-            self._pair_index = np.zeros(self.capacity * p, np.intp)
-            self._pair_rank = np.zeros(self.capacity * p, np.int32)
-        self.pair_index = self._pair_index[: self.capacity * p].reshape(self.capacity, p)
-        self.pair_rank = self._pair_rank[: self.capacity * p].reshape(self.capacity, p)
+        """Pairs: candidates closer than ``radius`` px (less than the layout's padding)."""
+        if int(radius) >= self.layout.pad:
+            raise ValueError(f"pair radius {radius} px reaches beyond the padding "
+                             f"({self.layout.pad} px)")
+        self.radius = int(radius)
 
     def find(self, filt_pad: np.ndarray, filt: np.ndarray, threshold: np.ndarray,
              bg_pad: np.ndarray, raise_threshold, noise_at) -> int:
@@ -166,24 +145,45 @@ class PeakFinder:
         return n
 
     def _local_maxima(self, n: int, filt_pad: np.ndarray) -> int:
+        """Mark in ``is_max[:n]`` the pixels above their four neighbours before them in
+        raster order and not below the four after; returns how many. The row's two
+        first, then the rows above and below for the maxima along the row alone."""
         if n == 0:
             return 0
         flat = filt_pad.ravel()
         idx = self.pixels[:n]
         v = self.pixel_values[:n]
         np.take(flat, idx, out=v, mode="clip")
-        nb_index = self.neighbour_index[:n]
-        np.add(idx[:, None], self.offsets8[None, :], out=nb_index)
-        nb = self.neighbours[:n]
+        is_max, tmp = self.is_max[:n], self.tmp[:n]
+        side_index, side = self.side_index[:n], self.side[:n]
+        np.subtract(idx, 1, out=side_index)
+        np.take(flat, side_index, out=side, mode="clip")
+        np.greater(v, side, out=is_max)
+        np.add(idx, 1, out=side_index)
+        np.take(flat, side_index, out=side, mode="clip")
+        np.greater_equal(v, side, out=tmp)
+        np.logical_and(is_max, tmp, out=is_max)
+        m = int(np.count_nonzero(is_max))
+        if m == 0:
+            return 0
+        along = self.row_max[:m]
+        np.compress(is_max, self.positions[:n], out=along)
+        at, values = self.side_index[:m], self.side[:m]     # free once the row is read
+        np.take(idx, along, out=at, mode="clip")
+        np.take(v, along, out=values, mode="clip")
+        nb_index = self.neighbour_index[:m]
+        np.add(at[:, None], self.offsets_across[None, :], out=nb_index)
+        nb = self.neighbours[:m]
         np.take(flat, nb_index, out=nb, mode="clip")
-        before, after = self.before[:n], self.after[:n]
+        before, after = self.before[:m], self.after[:m]
         np.max(nb[:, :_BEFORE], axis=1, out=before)
         np.max(nb[:, _BEFORE:], axis=1, out=after)
-        is_max, tmp = self.is_max[:n], self.tmp[:n]
-        np.greater(v, before, out=is_max)
-        np.greater_equal(v, after, out=tmp)
-        np.logical_and(is_max, tmp, out=is_max)
-        return int(np.count_nonzero(is_max))
+        found, below = self.tmp[:m], self.below[:m]
+        np.greater(values, before, out=found)
+        np.greater_equal(values, after, out=below)
+        np.logical_and(found, below, out=found)
+        np.put(is_max, along, found)
+        return int(np.count_nonzero(found))
 
     def _rank(self, m: int, bg_pad: np.ndarray, noise_at) -> int:
         """Maxima sorted by filtered value above the background, brightest first.
@@ -206,25 +206,54 @@ class PeakFinder:
         noise_at(self.cand[:n], self.cand_noise[:n])
         return n
 
+    def _pairs(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Every ordered pair (i, j), i != j, of ``cand[:n]`` within ``radius`` px.
+
+        Candidates in raster order; for each candidate and each row offset dy
+        within the radius, the run of candidates on that row within
+        sqrt(radius^2 - dy^2) columns is found by bisection (the padding is
+        wider than the radius, so a run never reaches into another row): work
+        in proportion to the candidates times the rows of the circle, plus the
+        pairs found, not to the circle's area. Temporaries are of that size.
+        """
+        cand, r = self.cand[:n], self.radius
+        by_flat, sorted_flat = self.by_flat[:n], self.sorted_flat[:n]
+        by_flat[:] = np.argsort(cand, kind="stable")
+        np.take(cand, by_flat, out=sorted_flat)
+        dy = np.arange(-r, r + 1)
+        reach = np.floor(np.sqrt(r * r - dy * dy)).astype(np.intp)
+        centre = cand[:, None] + (dy * self.stride)[None, :]
+        start = np.searchsorted(sorted_flat, centre - reach, side="left").ravel()
+        counts = np.searchsorted(sorted_flat, centre + reach, side="right").ravel() - start
+        first = np.cumsum(counts) - counts
+        j = by_flat[np.arange(int(counts.sum())) + np.repeat(start - first, counts)]
+        i = np.repeat(np.arange(n), counts.reshape(n, -1).sum(axis=1))
+        other = i != j
+        return i[other], j[other]
+
     def _deblend(self, n: int, filt_pad: np.ndarray) -> int:
-        """Drop bumps on brighter stars; mark close pairs blended; compact; returns count."""
+        """Drop bumps on brighter stars; mark close pairs blended; compact; returns count.
+
+        Candidates are ranked brightest first, so of a candidate's pairs those
+        with a lower index are the brighter, and the lowest is the brightest.
+        """
         if n == 0:
             return 0
         cand = self.cand[:n]
-        rank = self.rank
-        np.put(rank, cand, self.ranks[:n], mode="clip")
-        pair_index = self.pair_index[:n]
-        np.add(cand[:, None], self.pair_offsets[None, :], out=pair_index)
-        pr = self.pair_rank[:n]
-        np.take(rank, pair_index, out=pr, mode="clip")
-        # a neighbour counts if it is a candidate (rank > 0) ranked before this one
-        not_brighter = (pr == 0) | (pr >= self.ranks[:n, None])
-        np.copyto(pr, _NONE, where=not_brighter)
-        nearest = self.nearest[:n]
-        np.argmin(pr, axis=1, out=nearest)
-        has = pr[np.arange(n), nearest] != _NONE
+        i, j = self._pairs(n)
+        brighter = j < i
+        nearest, has = self.nearest[:n], self.has[:n]
+        nearest.fill(n)
+        np.minimum.at(nearest, i[brighter], j[brighter])
+        np.less(nearest, n, out=has)
+        np.copyto(nearest, np.arange(n), where=~has)   # a line to itself: kept anyway
+        rows, cols = self.cand_rows[:n], self.cand_cols[:n]
+        np.divmod(cand, self.stride, out=(rows, cols))
+        dy, dx = rows[nearest] - rows, cols[nearest] - cols
         line_index = self.line_index[:n]
-        np.add(cand[:, None], self.line_offsets[nearest], out=line_index)
+        for k, t in enumerate(_LINE_STEPS):
+            line_index[:, k] = (cand + np.rint(t * dy) * self.stride
+                                + np.rint(t * dx)).astype(np.intp)
         line = self.line_values[:n]
         np.take(filt_pad.ravel(), line_index, out=line, mode="clip")
         saddle = self.saddle[:n]
@@ -236,11 +265,8 @@ class PeakFinder:
         np.greater_equal(values - saddle, self.dip_sigma * noise, out=keep)
         np.logical_or(keep, ~has, out=keep)
         # blended: another kept candidate within the radius
-        np.put(rank, cand, keep.view(np.uint8), mode="clip")
-        np.take(rank, pair_index, out=pr, mode="clip")
-        np.put(rank, cand, 0, mode="clip")
         blended = self.blended[:n]
-        np.greater(np.max(pr, axis=1), 0, out=blended)
+        np.greater(np.bincount(i, weights=keep[j], minlength=n), 0, out=blended)
         k = int(np.count_nonzero(keep))
         for arr in (self.cand, self.cand_values, self.cand_noise, self.blended):
             arr[:k] = np.compress(keep, arr[:n])
