@@ -181,12 +181,14 @@ def test_short_tracks_pointing_every_way_do_not_measure_a_wide_psf():
     frames, the PSF of their search (31 and 43 false stars). Their ellipticity vectors
     point every way, a PSF's stars share one: only the spots near the sharp mode's
     median shape count, too few, and the frame's stars measure their PSF on the binned
-    frame (within 5 % in every frame), no track piece reported."""
+    frame (within 6 % in every frame: 2.31 px from 5 stars in one, whose tracks' charge
+    the simulator's corrected path in silicon changed; within 5 % before), no track piece
+    reported."""
     false = found = 0
     for seed in range(6):
         xs, ys, frame = _stars_among_tracks(seed, (300.0, 600.0), 120, 2.2)
         result = make_detector(CFG, (512, 512), 10).detect(frame.image)
-        assert result.psf_sigma_px == pytest.approx(2.2, rel=0.05), seed
+        assert result.psf_sigma_px == pytest.approx(2.2, rel=0.06), seed
         false, found = np.add((false, found), _false_and_found(xs, ys, result.stars))
     assert false == 0
     assert found >= 160
@@ -301,7 +303,11 @@ def test_saturated_track_pieces_on_glare_are_not_stars_and_saturated_stars_are()
     the sky's noise model above the background (light, not noise, reached it); a
     saturated spot holding less light than the PSF's area times its clipped peak is
     sharper than the optics. 12 reports on the glare are left (23 before, for this
-    seed); every star found before is found, 14 of them saturated."""
+    seed); 14 stars are found, 12 of them saturated (figures from a run, not from
+    theory: with the simulator's corrected charge, a short track's path in silicon,
+    the Poisson draws, and so the frame's noise, changed; the faint star at (364, 257),
+    SNR 17, a track 7 px away, is masked, and two bright stars peak below full scale,
+    at 887 and 953 ADU, and are flagged EXTENDED; before, 15 and 14)."""
     rng = np.random.default_rng(62)
     shape = (512, 512)
     xs, ys = _grid(5, shape, rng)
@@ -316,8 +322,8 @@ def test_saturated_track_pieces_on_glare_are_not_stars_and_saturated_stars_are()
     rows = np.clip(np.rint(stars["y"]).astype(int), 0, shape[0] - 1)
     cols = np.clip(np.rint(stars["x"]).astype(int), 0, shape[1] - 1)
     assert np.count_nonzero(~star & (scene.light_e[rows, cols] > 200.0)) <= 14
-    assert np.count_nonzero(_nearest(xs, ys, stars) < 1.0) >= 15
-    assert np.count_nonzero(stars["flags"][star] & StarFlag.SATURATED) >= 14
+    assert np.count_nonzero(_nearest(xs, ys, stars) < 1.0) >= 14
+    assert np.count_nonzero(stars["flags"][star] & StarFlag.SATURATED) >= 12
 
 
 def test_stars_trailed_across_the_frame_are_not_taken_for_tracks():

@@ -74,6 +74,29 @@ def test_particle_tracks_lengths_follow_isotropic_incidence():
     assert 0.9 * total < scene.deposits.sum() <= total * (1 + 1e-9)
 
 
+@pytest.mark.parametrize("cos_range", [(0.99, 1.0), (0.9, 0.99), (0.7, 0.9), (0.3, 0.7),
+                                       (0.05, 0.3)])
+def test_particle_charge_is_its_path_in_silicon(cos_range):
+    """A track's charge is mean_e x straggling x its path sqrt(length^2 + thickness^2),
+    at every incidence: charge / (mean_e path) has the straggling's median (lognormal of
+    median 1) whatever cos(theta) = thickness / path is. Short near-normal hits once got
+    thickness / length times too much (7x at cos 0.99)."""
+    thickness, mean_e = 1.5, 900.0
+    rng = np.random.default_rng(81)
+    scene = Scene.empty((300, 300))
+    particle_tracks(scene, rng, 4000, thickness_px=thickness, mean_e=mean_e,
+                    max_length_px=1e6)
+    length = np.array([t["length_px"] for t in scene.deposit_truth])
+    charge = np.array([t["charge_e"] for t in scene.deposit_truth])
+    path = np.hypot(length, thickness)
+    cos_t = thickness / path
+    at = (cos_t >= cos_range[0]) & (cos_t < cos_range[1])
+    assert np.count_nonzero(at) >= 40
+    straggle = charge[at] / (mean_e * path[at])
+    # median of a lognormal(0, 0.4) sample of >= 40: standard error <= 0.08 in log
+    assert np.median(straggle) == pytest.approx(1.0, abs=0.2)
+
+
 @pytest.mark.parametrize("model", ["gaussian_poisson", "salt_pepper", "glare"])
 @pytest.mark.parametrize("target", [-5.0, 3.0])
 def test_written_parameters_reach_the_target_snr_through_the_sky(model, target):

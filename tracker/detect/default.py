@@ -33,7 +33,12 @@ handled, sigma 3.5 px):
    brightest spots of the frame binned 4 x 4 (tracker.detect.binned: a wide
    star's light summed against a quarter of the noise), on the sky only,
    through the same tests and meter; particles' tracks and sharp hits
-   measured among them do not vote in a second try. The frame is then
+   measured among them do not vote in a second try. A PSF measured as
+   sharp as a particle's charge is checked there too: round near-normal
+   hits of a particle event can outnumber the bright stars and agree on
+   it, and where the binned frame's stars agree on one 1.5 times wider,
+   theirs is the frame's (the optics never blur a particle's charge, and
+   blur every star alike). The frame is then
    searched once (steps 5-7) with that PSF, the impulses' second pass
    judged against the sharpest PSF handled, and the lone impulse candidates
    (no track beside them) judged against the measured one after the search,
@@ -134,6 +139,8 @@ from tracker.detect.multiplicative import MultiplicativeFit
 from tracker.detect.order import median
 from tracker.detect.peaks import PeakFinder
 from tracker.detect.psf import (
+    CHARGE_SIGMA_PX,
+    OPTICS_WIDER,
     SIGMA_MAX_PX,
     SIGMA_MIN_PX,
     PsfEstimate,
@@ -589,6 +596,8 @@ class DefaultDetector:
                 measured, bound, binned_few = self._binned_psf()
                 binned = measured is not None
                 few = binned_few or few
+            elif measured.sigma_px < CHARGE_SIGMA_PX:
+                measured, bound, binned, few = self._confirm_sharp(measured)
         self.psf = self.psf_tracker.update(measured)
         if few is not None and _contradicts(few, self.psf):
             # the estimate of earlier frames (or the configured start) is not this frame's:
@@ -768,6 +777,23 @@ class DefaultDetector:
             near = sigma[np.abs(np.log(sigma / measured.sigma_px)) <= _BOUND_AGREE]
             return None, float(near.min()) if len(near) else measured.sigma_px, measured
         return measured, None, None
+
+    def _confirm_sharp(self, sharp: PsfEstimate):
+        """A PSF measured as sharp as a particle's charge (``sharp``), checked against the
+        frame binned 4 x 4 (:meth:`_binned_psf`). Near-normal particle hits are round and
+        that sharp, and where they outnumber the bright stars they agree on a PSF of
+        their own. The optics blur every star of a frame alike and never a particle's
+        charge: if the binned frame's stars (fainter ones, their light summed; a sharp
+        PSF's are single binned pixels there, too sharp to be measured) agree on a PSF
+        ``OPTICS_WIDER`` times wider, the sharp spots were charge, and the binned
+        measurement is the frame's (from fewer than ``psf_min_stars``: none, with their
+        bound and estimate). Returns (measured, bound, binned, few) as in :meth:`detect`.
+        """
+        wide, bound, few = self._binned_psf()
+        other = wide if wide is not None else few
+        if other is None or other.sigma_px < OPTICS_WIDER * sharp.sigma_px:
+            return sharp, None, False, None
+        return wide, bound, wide is not None, few
 
     def _retest_lone(self, count: int, sigma_px: float) -> int:
         """Judge the lone impulse candidates again against a PSF of ``sigma_px``

@@ -76,7 +76,8 @@ import numpy as np
 from tracker.detect.order import median
 
 __all__ = ["PsfEstimate", "PsfMeter", "PsfTracker", "SIGMA_MIN_PX", "SIGMA_MAX_PX",
-           "FWHM_PER_SIGMA", "pixel_tensor_to_optics", "combine_stars"]
+           "FWHM_PER_SIGMA", "CHARGE_SIGMA_PX", "OPTICS_WIDER", "pixel_tensor_to_optics",
+           "combine_stars"]
 
 SIGMA_MIN_PX = 0.45     # narrower PSFs are undersampled beyond what the fit models
 SIGMA_MAX_PX = 3.5      # the largest windows the detector's buffers hold
@@ -95,13 +96,13 @@ _RING_FRACTION = 0.02
 _MAX_ELLIPTICITY = 0.5
 _BIN = math.log(1.10)
 _AGREE = math.log(1.15)
-_OPTICS_WIDER = 1.5          # spots this much wider than the mode (at least two) ...
-_OPTICS_GAP = math.log(_OPTICS_WIDER)
+OPTICS_WIDER = 1.5          # spots this much wider than the mode (at least two) ...
+_OPTICS_GAP = math.log(OPTICS_WIDER)
 # a particle's charge, diffused in the silicon, is at most this wide (optical sigma, px):
 # as sharp as the sharpest PSF handled, give or take the same factor
-_CHARGE_SIGMA_PX = _OPTICS_WIDER * SIGMA_MIN_PX
+CHARGE_SIGMA_PX = OPTICS_WIDER * SIGMA_MIN_PX
 # ... and the PSF meter's adaptive weight for it (never under _MIN_WEIGHT_PX)
-_CHARGE_WEIGHT_PX = max(_MIN_WEIGHT_PX, math.sqrt(_CHARGE_SIGMA_PX ** 2 + PIXEL_VARIANCE))
+_CHARGE_WEIGHT_PX = max(_MIN_WEIGHT_PX, math.sqrt(CHARGE_SIGMA_PX ** 2 + PIXEL_VARIANCE))
 _WIDER_STARS = 3             # ... measure the PSF if this many agree (or min_stars)
 # a sharp mode's spots share one shape: an ellipticity vector within this of their median
 # one beyond their noise (the optics' variation across a field) ...
@@ -230,7 +231,7 @@ class PsfMeter:
         # outgrow the windows (their isolation rings beyond the edge): the windows are
         # widened for them, and combine_stars tells the two populations apart
         w_now = np.sqrt(p["w2"])
-        wide = w_now >= _OPTICS_WIDER * w_typical
+        wide = w_now >= OPTICS_WIDER * w_typical
         if (w_typical <= _CHARGE_WEIGHT_PX and radius < self.radius
                 and np.count_nonzero(wide & (_RING[1] * w_now > radius)) >= 2):
             w_wide = median(w_now[wide])
@@ -456,7 +457,7 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, snr, min_stars: int) -> Psf
     best = _densest(log_s)
     agree = np.abs(log_s - best) <= _AGREE
     wider = log_s > best + _OPTICS_GAP
-    charge = math.log(_CHARGE_SIGMA_PX)
+    charge = math.log(CHARGE_SIGMA_PX)
     if (best < charge and np.count_nonzero(wider) < 2
             and np.count_nonzero(_shared_shape(cxx, cyy, cxy, snr, agree) & agree) < min_stars):
         # as sharp as a particle's charge, no wider spots, and too few of them share one
@@ -484,7 +485,7 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, snr, min_stars: int) -> Psf
     # stars' robust spread (when the mode is picked among noisy values, the stars
     # near it understate how far it can wander); particles' sharp charge, beside a
     # wider mode, is not among them
-    stars = sigma[sigma >= _CHARGE_SIGMA_PX] if best >= charge else sigma
+    stars = sigma[sigma >= CHARGE_SIGMA_PX] if best >= charge else sigma
     spread = max(float(np.std(sigma[agree])) / math.sqrt(m),
                  1.4826 * median(np.abs(stars - median(stars)))
                  / math.sqrt(len(stars)), 0.01 * float(s_opt) / math.sqrt(m))

@@ -138,10 +138,11 @@ def particle_tracks(scene: Scene, rng: np.random.Generator, count: int, *,
 
     Incidence is isotropic over the half-sphere (cos theta uniform), so the
     projected length thickness * tan(theta) is mostly a few pixels with a
-    long tail (capped at ``max_length_px``). Charge per pixel of projected
-    length is ``mean_e`` times a lognormal straggling factor times the path
-    in silicon per unit projected length, sqrt(1 + (thickness / length)^2);
-    each deposit is spread by a Gaussian of ``diffusion_px``.
+    long tail (capped at ``max_length_px``). A track's charge is ``mean_e``
+    (e- per pixel of path) times a lognormal straggling factor times its
+    path in the silicon, sqrt(length^2 + thickness^2) px, spread evenly
+    along the projected length; each deposit is spread by a Gaussian of
+    ``diffusion_px``.
     """
     rows, cols = scene.deposits.shape
     flat = scene.deposits.ravel()
@@ -150,13 +151,12 @@ def particle_tracks(scene: Scene, rng: np.random.Generator, count: int, *,
         length = min(thickness_px * math.sqrt(1.0 - cos_t ** 2) / cos_t, max_length_px)
         angle = float(rng.uniform(0.0, 2.0 * math.pi))
         x0, y0 = float(rng.uniform(0, cols - 1)), float(rng.uniform(0, rows - 1))
-        per_px = (mean_e * float(rng.lognormal(0.0, 0.4))
-                  * math.sqrt(1.0 + (thickness_px / max(length, 1e-3)) ** 2))
+        straggle = float(rng.lognormal(0.0, 0.4))
         steps = max(2, int(math.ceil(length / 0.2)) + 1)
         t = np.linspace(0.0, 1.0, steps)
         xs = x0 + t * length * math.cos(angle)
         ys = y0 + t * length * math.sin(angle)
-        charge = per_px * max(length, thickness_px)
+        charge = mean_e * straggle * math.hypot(length, thickness_px)
         # Gaussian splat of each sample over its 5 x 5 neighbourhood
         ix, iy = np.rint(xs).astype(np.int64), np.rint(ys).astype(np.int64)
         off = np.arange(-2, 3)
