@@ -11,14 +11,14 @@ its frame's stars only by
 * its noise: the width of a spot of windowed SNR ``known`` (its own shot
   noise counted, tracker.detect.significance) spreads by about
   sqrt(2) / known of itself (the spread of a second moment under the
-  matched weight; 0.8-1.0 of that on simulated stars of sigma 1.3-2.5 px at
+  matched weight; 0.65-0.9 of that on simulated stars of sigma 1.3-2.5 px at
   SNR 10-80);
 * the lens's field: a PSF sigma varying by ``FIELD_SPREAD`` (one standard
   deviation, relative) across the field moves a star's width under the
   matched weight by as much (d ln width / d ln sigma = 1 there);
 * its pixel phase: an undersampled star centred on a pixel's edge reads
   narrower across it than one centred on a pixel (:func:`lowest_phase_width`:
-  0.98 of the mean at sigma 0.8 px, 0.72 at 0.6 px, 1.00 from 1.0 px).
+  0.99 of the mean at sigma 0.8 px, 0.86 at 0.6 px, 1.00 from 1.0 px).
 
 A spot narrower than the frame's star width times the lowest phase's ratio,
 by more than ``spreads`` of the first two in quadrature, is sharper than the
