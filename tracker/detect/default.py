@@ -154,6 +154,7 @@ from tracker.detect.roughness import StarRoughness
 from tracker.detect.sigma_steps import SigmaSteps
 from tracker.detect.significance import shot_noise_snr
 from tracker.detect.slabs import SlabRunner
+from tracker.detect.star_width import lowest_phase_width, sharper_than_stars
 from tracker.detect.stars import StarTable
 from tracker.detect.surroundings import Surroundings, across_a_line, sky_noise_model
 from tracker.detect.threshold import (
@@ -189,8 +190,8 @@ _STAR_ELLIPTICITY = 0.2        # ... and they are round
 _TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
 _TRACK_ELLIPTICITY = 0.3       # ... this elongated is a particle's track
 _TRACK_EXCESS = 0.35           # a spot this much more elongated than the frame's PSF ...
-_NARROW_WIDTH = 0.7            # a spot this narrow (its PSF's = 1), unsaturated, ...
-_NARROW_SNR = 50.0             # ... at this SNR is a particle's charge, not a star
+_SHARP_WIDTH_SPREADS = 4.0     # narrower than the frame's stars by this many spreads: sharp
+_STAR_WIDTH_SNR = 30.0         # star-like spots this significant set the frame's star width
 _SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
 _CLIPPED_AREA = 0.6           # a saturated spot's flux/peak under this x the PSF's is sharp
 _CLIP_SIGMAS = 4.0             # full scale this many pixel noises above the background
@@ -470,6 +471,7 @@ class DefaultDetector:
         if self.cfg.centroid_noise == "multiplicative":
             self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
         self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
+        self.phase_low = lowest_phase_width(sigma_px)
         self.surroundings.configure(int(math.ceil(_SKY_RING_SIGMAS * sigma)))
         scalars, self.edge_gain = self.steps.get(step, lambda: self._step_constants(step))
         self.psf_filter = (kernel, scalars[0], scalars[1], self.edge_gain)
@@ -1267,14 +1269,14 @@ class DefaultDetector:
             # saturated star's clipped top is as round as its PSF)
             excess = v["ellipticity"] - self.psf.ellipticity
             track |= (excess > _TRACK_EXCESS) | (saturated & (excess > _SATURATED_TRACK_EXCESS))
-            # a bright spot well narrower than the frame's stars across their narrowest
-            # axis (a trailed frame's stars are narrow across the trail): a particle's
-            # charge diffused over a pixel or two, as wide as a sharp PSF (0.45 px
-            # against 0.6-0.8) but not as the frame's own; at SNR 50 a star's width is
-            # known to a few percent, and a lens's field varies it far less than this
-            narrowest_psf = 1.0 - self.psf.ellipticity
-            track |= ((width < _NARROW_WIDTH * narrowest_psf) & (v["snr"] >= _NARROW_SNR)
-                      & ~saturated)
+            # a spot narrower than the frame's stars across their narrowest axis (a
+            # trailed frame's stars are narrow across the trail) by more than its width's
+            # noise, the lens's field and its pixel phase allow: a particle's charge
+            # diffused over a pixel or two, as wide as a sharp PSF (0.45 px against
+            # 0.6-0.8) but not as the frame's own (tracker.detect.star_width)
+            track |= ~saturated & sharper_than_stars(
+                width, known, self._star_width(v, star_like, saturated), self.phase_low,
+                _SHARP_WIDTH_SPREADS)
         # clipping only widens a star (its flux over its clipped peak grows), so a
         # saturated spot holding less light than the PSF's area times its clipped peak
         # is sharper than the optics: a particle's charge
@@ -1334,6 +1336,16 @@ class DefaultDetector:
         flags[broad[keep]] |= StarFlag.EXTENDED
         s["flags"][:count] = flags
         return count
+
+    def _star_width(self, v: dict, star_like: np.ndarray, saturated: np.ndarray) -> float:
+        """The width of the frame's stars (tracker.detect.star_width's convention): the
+        median over its unsaturated star-like spots at SNR >= ``_STAR_WIDTH_SNR``, or,
+        for fewer than five, its measured PSF's across its narrowest axis."""
+        bright = star_like & ~saturated & (v["snr"] >= _STAR_WIDTH_SNR)
+        if np.count_nonzero(bright) >= 5:
+            narrowest = 0.5 * v["size"][bright] * (1.0 - v["ellipticity"][bright])
+            return float(median(narrowest)) / (0.5 * self.expected_size)
+        return 1.0 - self.psf.ellipticity
 
     def _rougher_than_a_star(self, v: dict, noise: np.ndarray, star_like: np.ndarray):
         """A test of the spots' pixel-scale roughness (tracker.detect.windowed) against a
