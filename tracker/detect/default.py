@@ -788,14 +788,15 @@ class DefaultDetector:
         charge: if the binned frame's stars (fainter ones, their light summed; a sharp
         PSF's are single binned pixels there, too sharp to be measured) agree on a PSF
         ``OPTICS_WIDER`` times wider, the sharp spots were charge, and the binned
-        measurement is the frame's (from fewer than ``psf_min_stars``: none, with their
-        bound and estimate). Returns (measured, bound, binned, few) as in :meth:`detect`.
+        measurement is the frame's. Fewer than ``psf_min_stars`` binned stars do not
+        overrule the sharp spots: three faint stars of a sharp PSF, undersampled, can read
+        twice its width, and the frame would go unmeasured. Returns (measured, bound,
+        binned, few) as in :meth:`detect`.
         """
-        wide, bound, few = self._binned_psf()
-        other = wide if wide is not None else few
-        if other is None or other.sigma_px < OPTICS_WIDER * sharp.sigma_px:
+        wide = self._binned_psf()[0]
+        if wide is None or wide.sigma_px < OPTICS_WIDER * sharp.sigma_px:
             return sharp, None, False, None
-        return wide, bound, wide is not None, few
+        return wide, None, True, None
 
     def _retest_lone(self, count: int, sigma_px: float) -> int:
         """Judge the lone impulse candidates again against a PSF of ``sigma_px``
