@@ -175,15 +175,17 @@ class Pipeline:
         if self._solver is not None:
             self._solver.reset(lens=lens)
 
-    def solve_stars(self, stars, t_ns: int, observer: Observer | None = None) -> Solution:
+    def solve_stars(self, stars, t_ns: int, observer: Observer | None = None,
+                    exposure_s: float | None = None) -> Solution:
         """Identify stars and solve the attitude, the catalogue at the observer's epoch.
 
         ``stars``: STAR_DTYPE rows (x, y, flux) in the camera's pixels;
-        ``t_ns`` and ``observer`` as in :meth:`process`.
+        ``t_ns``, ``observer`` and ``exposure_s`` as in :meth:`process`
+        (None: the stars' trails unknown, not weighed).
         """
         observer = observer or Observer()
         self._follow_epoch(observer)
-        return self.solver.solve(stars, t_ns, observer)
+        return self.solver.solve(stars, t_ns, observer, exposure_s=exposure_s)
 
     def _follow_epoch(self, observer: Observer) -> None:
         """Propagate the catalogue to the observer's epoch if it moved too far (module doc)."""
@@ -262,7 +264,8 @@ class Pipeline:
         exposure mid-point (monotonic clock), used by tracking; ``observer``
         the frame's absolute time and velocity (None: unknown, no aberration
         corrected); ``exposure_s`` its exposure time (None: the configured
-        ``capture.exposure_us``), which sizes the windows for the smear.
+        ``capture.exposure_us``), which sizes the windows for the smear and
+        weighs trailed stars in the solve.
         """
         observer = observer or Observer()
         t0 = time.perf_counter_ns()
@@ -288,7 +291,7 @@ class Pipeline:
             reason = "frame_size"
         else:
             stars = self._untrailed(image, detections.stars, t_ns, exposure, stages)
-            solution = self.solve_stars(stars, t_ns, observer)
+            solution = self.solve_stars(stars, t_ns, observer, exposure)
             stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})
         elapsed = (time.perf_counter_ns() - t0) / 1e6
         return FrameResult(detections, solution, elapsed, stages, reason, observer,
@@ -349,7 +352,8 @@ class Pipeline:
         named = prediction.catalogue[:plan.stars] >= 0
         solution = solver.solve(stars, t_ns, observer, search_area_px=plan.area_px,
                                 predicted=prediction.catalogue[:plan.stars][named],
-                                predicted_xy=prediction.xy[:plan.stars][named])
+                                predicted_xy=prediction.xy[:plan.stars][named],
+                                exposure_s=exposure_s)
         if not solution.ok:
             return None
         stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})

@@ -38,14 +38,16 @@ last attitude and rate (for tracking) and the lens estimate.
    solved once more through the filtered lens (Wahba), with sigmas from the
    residuals blended with the ``centroid_sigma_px`` prior. Wahba (here and
    in tracking's gated pass) weights each star by its centroid's expected
-   precision, 1 / (``centroid_sigma_px``^2 + (``_CENTROID_SNR_PX`` / SNR)^2),
-   when the detector gave every star an SNR: a faint star found in a
-   tracking window (where the full frame's threshold would not have kept
-   it) or smeared by a slew is centred two to three times worse than a
-   bright one and no longer counts as much (tracker.bench.track's slews, 6 s
-   each, windowed and full-frame alike: 8 mm at 3 deg/s, 4 slews,
-   cross-boresight RMS 9-16 % lower, roll 5-13 %; 16 mm at 1 deg/s, 2
-   slews, 9-25 % and 9-21 %). The reported sigmas stay those of equal
+   precision, 1 / variance (tracker.identify.predict.centroid_variance: a
+   0.05 px floor and 1.75 px / SNR, a trail's length added along it from
+   the rate and the exposure, when the caller gives the exposure), when
+   the detector gave every star an SNR. Measured against the truth on
+   tracked 3 deg/s slews, a bright star is centred to 0.05-0.1 px and one
+   at SNR 6 to 0.4-0.5 px: a weight's floor of 0.25 px (the prior above,
+   on main to ea288bd) made the faint stars, most of a frame's matches,
+   count nearly as much as the bright ones, and the windows, which find
+   more of them than the full frame, lost up to 10 % against it
+   (tracker.bench.track). The reported sigmas stay those of equal
    weights (conservative).
 
 Aberration: with the frame's observer context (an absolute time, perhaps a
@@ -94,6 +96,7 @@ from tracker.identify.lens import LensFilter, LensPrior, LensState, fit_frame
 from tracker.identify.lost import Hypothesis, PatternSearch, WorkBudget, clean_first
 from tracker.identify.predict import (
     TrackPrediction,
+    centroid_variance,
     informative,
     pixel_jacobian,
     spread_and_smear,
@@ -110,10 +113,6 @@ _CONE_REUSE_RAD = math.radians(0.5)   # tracking's catalogue cone: 0.5 deg wider
 # the faintest magnitude tracking expects to see falls by at most this a frame: a star
 # at the detection limit, seen in one frame in two, keeps the windows' count steady
 _FAINTEST_DECAY_MAG = 0.02
-# a centroid's noise per axis is about this over its star's SNR, px: sqrt(2) sigma for a
-# Gaussian spot of sigma 1.2 px (the configured PSF) limited by its background's noise
-_CENTROID_SNR_PX = 1.7
-
 
 @dataclass(frozen=True)
 class LensReport:
@@ -306,6 +305,7 @@ class Solver:
         self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
         self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
         self._snr: np.ndarray | None = None   # this frame's stars' SNR, as _prepare ordered them
+        self._trail2: np.ndarray | None = None  # their squared travels over the exposure, px^2
         self._flags: np.ndarray | None = None  # their detector flags (lost in space orders by them)
         self._faintest = math.inf   # catalogue magnitude of the faintest stars matched lately
         self._snr_zero: float | None = None   # log10 SNR + 0.4 mag of the last matches
@@ -363,7 +363,8 @@ class Solver:
 
     def solve(self, stars, t_ns: int, observer=None, search_area_px: float | None = None,
               predicted: np.ndarray | None = None,
-              predicted_xy: np.ndarray | None = None) -> Solution:
+              predicted_xy: np.ndarray | None = None,
+              exposure_s: float | None = None) -> Solution:
         """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module.
 
         ``observer``: the frame's tracker.astrometry.observer.Observer (None: unknown).
@@ -378,6 +379,8 @@ class Solver:
         (at the attitude, lens and observer this frame is tracked from): the
         gated pass pairs each with the nearest star found
         there (within ``track_gate_px``), with no projection of its own.
+        ``exposure_s``: the frame's exposure time; with it and a rate, each
+        star's weight counts its trail (module docstring, refinement).
         """
         timer = self._timer
         timer.reset()
@@ -391,6 +394,8 @@ class Solver:
         if isinstance(prepared, str):
             return self._fail(prepared, hip)
         idx, xy, flux = prepared
+        smear = None if exposure_s is None else self.smear_px(xy, t_ns, exposure_s)
+        self._trail2 = None if smear is None else np.square(smear).sum(axis=1)
         lens_cam = self.lens_camera()
         subset = None if search_area_px is None else np.asarray(predicted)
         if self._can_track(t_ns):
@@ -583,7 +588,7 @@ class Solver:
         snr = self._snr[ok]
         if not (snr > 0).all():                       # (NaN fails it too)
             return None
-        return 1.0 / (self.cfg.centroid_sigma_px ** 2 + np.square(_CENTROID_SNR_PX / snr))
+        return 1.0 / centroid_variance(snr, None if self._trail2 is None else self._trail2[ok])
 
     def _seen(self, cat_idx: np.ndarray) -> np.ndarray:
         """Catalogue directions as this frame's observer sees them (module docstring)."""
