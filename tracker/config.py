@@ -362,9 +362,9 @@ class IdentifyConfig:
     duplicate_px: float = knob(0.5, "centroids closer than this are one star (the fainter "
                                "is dropped)", "px", min=0.0, max=100.0)
     centroid_sigma_px: float = knob(0.25, "prior centroid noise per axis, blended with the "
-                                    "fit residuals for the reported sigmas; the floor of "
-                                    "the attitude's per-star weights (with 1.7 px / SNR)",
-                                    "px",
+                                    "fit residuals for the reported sigmas (the attitude's "
+                                    "per-star weights are the centroids' own: "
+                                    "tracker.identify.predict.centroid_variance)", "px",
                                     min=0.001, max=100.0)
     mag_tolerance: float = knob(1.5, "a match is dropped when its catalogue magnitude is "
                                 "this far from the one its flux implies (zero point: "

@@ -26,10 +26,11 @@ beyond it. Three things then go wrong unless handled:
 The centroid's fit (tracker.detect.fit) leaves the pixels beyond the edge
 out, so a cut star's centre is that of the light the frame holds.
 
-The attitude's weights (tracker.identify: 1 / (centroid_sigma_px^2 +
-(1.7 px / SNR)^2)) need nothing for the EDGE flag: a cut star's SNR is that
-of its light inside the frame over the noise of its whole window, so it
-falls with the light the edge takes, and its centre's precision with it.
+The attitude's weights (tracker.identify.predict.centroid_variance: 1 /
+(0.05 px^2 + (1.75 px / SNR)^2), a trail's length added) need nothing for
+the EDGE flag: a cut star's SNR is that of its light inside the frame over
+the noise of its whole window, so it falls with the light the edge takes,
+and its centre's precision with it.
 On 240 realistic frames the errors of stars within 1.5 px of the edge,
 over 1.7 px / SNR, are 1.09 times those of stars inside (RMS; 90 against
 24,221 stars at SNR 8-100).
