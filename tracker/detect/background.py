@@ -128,7 +128,7 @@ class BackgroundGrid:
         self.spread3 = np.zeros(self.grid_shape, np.float32)  # m2^1.5
         self.star_free = np.zeros(self.grid_shape, np.bool_)
         self.above = np.zeros(self.grid_shape, np.int32)   # samples above the level
-        self.is_above = np.zeros(self.index.shape, np.bool_)
+        self.is_above = np.zeros(self.index.shape, np.bool_)   # samples above their level
         self.pooled = np.zeros(self.grid_shape, np.float32)
         self.above_near = np.zeros(self.grid_shape, np.int32)   # above(), 3x3 summed
         # lattice samples in each tile's 3x3 neighbourhood (fewer at the grid's border)
