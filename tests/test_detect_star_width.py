@@ -84,11 +84,3 @@ def test_sharper_than_stars_follows_the_width_noise():
     out = sharper_than_stars(width, known, 1.0, 1.0, 4.0)
     assert out.tolist() == [True, False, False]
 
-
-def test_detector_reads_the_lowest_width_of_each_psf_step_from_its_table():
-    """The detector's lowest width over the pixel phase, kept per PSF step (tracker.detect.
-    sigma_steps), is the one computed for the step's sigma, across the range handled."""
-    det = make_detector(DetectConfig(), (64, 80), 10)
-    for sigma_px in (0.5, 0.8, 1.2, 2.0, 3.2):
-        det._configure(sigma_px)
-        assert det.phase_low == lowest_phase_width(det.psf_sigma_used)
