@@ -109,13 +109,19 @@ class FrameInput:
 
     def _load_unsigned(self, image: np.ndarray) -> str | None:
         """A uint8 or uint16 frame into the uint16 ``work``, clipped at full scale in the
-        same pass as the copy (whole numbers already: the rounding of :meth:`_round` changes
-        none). The reasons come from the first row where it tells them (a positive value
-        and two different ones: neither empty, flat nor saturated), else from the copy:
-        clipping changes none of them (a frame flat only once clipped reads full scale
-        everywhere, so saturated)."""
+        same pass as the copy (whole numbers already: the rounding of :meth:`_round`
+        changes none; OpenCV's min takes a plain copy's time, numpy's a third more, a max
+        pass then a copy two thirds more). The reasons come from the first row where it
+        tells them (a positive value and two different ones: neither empty, flat nor
+        saturated), else from the copy: clipping changes none of them (a frame flat only
+        once clipped reads full scale everywhere, so saturated)."""
         work = self.work
-        np.minimum(image, self.top, out=work)
+        if image.dtype == np.uint8 and self.full_scale >= 255.0:
+            np.copyto(work, image)                      # nothing lies above full scale
+        elif image.dtype == np.uint16 and image.strides[1] == image.itemsize:
+            cv2.min(image, self.full_scale, dst=work)   # in a plain copy's time
+        else:
+            np.minimum(image, self.top, out=work)       # other strides: numpy's (slower)
         first = work[0]
         if first.max() > 0 and first.min() < first.max():
             return None
