@@ -83,4 +83,3 @@ def test_sharper_than_stars_follows_the_width_noise():
     known = np.array([100.0, 10.0, 100.0])
     out = sharper_than_stars(width, known, 1.0, 1.0, 4.0)
     assert out.tolist() == [True, False, False]
-
