@@ -7,6 +7,7 @@ import pytest
 
 from tracker.config import DetectConfig, SimConfig
 from tracker.detect import METHODS, make_detector
+from tracker.detect.frame_input import FrameInput
 from tracker.sim import render_points
 
 SHAPE = (48, 64)
@@ -89,3 +90,34 @@ def test_random_garbage_never_raises(config):
         result = det.detect(frame)
         assert result.count <= DetectConfig().max_stars
         assert np.all(np.isfinite(result.stars["x"])) and np.all(np.isfinite(result.stars["y"]))
+
+
+def _through_float(image: np.ndarray, full_scale: float) -> np.ndarray:
+    """The uint16 work the float route makes of ``image``: clipped to 0..full scale, rounded."""
+    return np.rint(np.clip(image.astype(np.float64), 0.0, full_scale)).astype(np.uint16)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_unsigned_frames_reach_the_work_as_the_float_route_makes_them(dtype):
+    """The one-pass copy of uint8/uint16 frames (clipped at full scale) gives the work and
+    the reason the float route gives, including where the first row says nothing."""
+    rng = np.random.default_rng(3)
+    top = np.iinfo(dtype).max
+    noisy = rng.integers(0, top, SHAPE, endpoint=True).astype(dtype)
+    first_row_dark = noisy.copy()
+    first_row_dark[0] = 0
+    first_row_flat = np.full(SHAPE, 7, dtype)
+    first_row_flat[1:, 3] = 9
+    beyond = np.full(SHAPE, top, dtype)        # all at or over full scale, not all equal
+    beyond[5, 5] = top - 1
+    frames = [(noisy, None), (first_row_dark, None), (first_row_flat, None),
+              (np.zeros(SHAPE, dtype), "empty"), (np.full(SHAPE, 7, dtype), "flat")]
+    bit_depth = 10 if dtype == np.uint16 else 8
+    full_scale = 2 ** bit_depth - 1
+    if dtype == np.uint16:
+        frames.append((beyond, "saturated"))
+    for image, reason in frames:
+        frame_input = FrameInput(SHAPE, bit_depth, dtype=np.uint16)
+        assert frame_input.load(image) == reason
+        if reason is None:
+            np.testing.assert_array_equal(frame_input.work, _through_float(image, full_scale))

@@ -62,16 +62,10 @@ def _erfinv(y: float) -> float:
 
 
 def _mean(a: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """Mean of ``a`` along its last axis into ``out`` (numpy's own arithmetic for float32:
-    the same sum, then the division, without np.mean's Python layers)."""
-    np.add.reduce(a, axis=-1, out=out)
-    return np.true_divide(out, a.shape[-1], out=out)
-
-
-def _integer_mean(a: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """:func:`_mean` of float32 values that are whole numbers, summing to under 2^24: every
-    partial sum is exact, so the order of the sum (einsum's, a quarter of the reduction's
-    time on the short tile axis) does not change it."""
+    """Mean of ``a`` along its last axis into ``out``. einsum's sum takes a quarter of
+    np.add.reduce's time on the short tile axis (its order differs: float32 sums of
+    the same values agree to a few units in their last place, and exactly for whole
+    numbers summing to under 2^24, such as a middle half of uint16 reads)."""
     np.einsum("...k->...", a, out=out)
     return np.true_divide(out, a.shape[-1], out=out)
 
@@ -108,8 +102,6 @@ class BackgroundGrid:
         self.minus_samples = np.zeros(self.index.shape, np.float32)
         self.int_samples = np.zeros(self.index.shape, np.uint16)  # reads of uint16 frames
         self.middle = self.samples[..., m // 4: m - m // 4]
-        # the middle half of uint16 reads sums exactly in float32
-        self._exact_sums = self.middle.shape[-1] * 65535 < 2 ** 24
         # integer frames: a fixed uniform dither on (-1/2, 1/2) spreads each sample over
         # its unit bin (the same every frame: the same frame gives the same statistics);
         # stratified: each tile's m values are (k + 1/2) / m - 1/2 in a shuffled order
@@ -136,6 +128,7 @@ class BackgroundGrid:
         self.spread3 = np.zeros(self.grid_shape, np.float32)  # m2^1.5
         self.star_free = np.zeros(self.grid_shape, np.bool_)
         self.above = np.zeros(self.grid_shape, np.int32)   # samples above the level
+        self.is_above = np.zeros(self.index.shape, np.bool_)   # samples above their level
         self.pooled = np.zeros(self.grid_shape, np.float32)
         self.above_near = np.zeros(self.grid_shape, np.int32)   # above(), 3x3 summed
         # lattice samples in each tile's 3x3 neighbourhood (fewer at the grid's border)
@@ -206,10 +199,11 @@ class BackgroundGrid:
             values = self.rounded
         else:
             values = self.samples
-        mean = _integer_mean if lattice and self._exact_sums else _mean
-        mean(values[..., m // 4: m - m // 4], self.level_raw)
+        _mean(values[..., m // 4: m - m // 4], self.level_raw)
         if lattice:
-            np.sum(values > self.level_raw[..., None], axis=-1, out=self.above)
+            np.greater(values, self.level_raw[..., None], out=self.is_above)
+            np.einsum("...k->...", self.is_above.view(np.uint8), out=self.above,
+                      dtype=np.int32, casting="unsafe")
         if dark_side is not None and np.any(dark_side):
             dark = values[dark_side]
             self.level_raw[dark_side] = dark[:, m // 16: 3 * m // 8].mean(axis=-1)

@@ -435,7 +435,7 @@ class DefaultDetector:
                          "left_out": 0}
         self._sigma_step = None
         self.steps = SigmaSteps(_sigma_step_of(SIGMA_MIN_PX), _sigma_step_of(SIGMA_MAX_PX),
-                                4 + len(fields(StarRoughness)),
+                                5 + len(fields(StarRoughness)),
                                 _kernel_half(SIGMA_MAX_PX))
         self.steps.fill(self._step_constants)
         self._configure(cfg.psf_sigma_px)
@@ -449,7 +449,8 @@ class DefaultDetector:
         were built for: a PSF wandering by a few per cent from frame to
         frame leaves the kernels, windows and their buffers as they are.
         The constants that take some arithmetic (thresholds, contrasts, the
-        roughness of a star and its spread, the filter's gain at the borders) come
+        roughness of a star and its spread, a star's lowest width over its pixel
+        phase, the filter's gain at the borders) come
         from ``self.steps``, computed once per step.
         """
         position = math.log(sigma_px) / _SIGMA_STEP
@@ -471,14 +472,13 @@ class DefaultDetector:
         if self.cfg.centroid_noise == "multiplicative":
             self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
         self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
-        self.phase_low = lowest_phase_width(sigma_px)
         self.surroundings.configure(int(math.ceil(_SKY_RING_SIGMAS * sigma)))
         scalars, self.edge_gain = self.steps.get(step, lambda: self._step_constants(step))
         self.psf_filter = (kernel, scalars[0], scalars[1], self.edge_gain)
         self._filter_key = None
         self._set_filter(False)
-        self.impulse_contrast, self.impulse_ring = scalars[2:4]
-        self.star_roughness = StarRoughness.from_values(scalars[4:])
+        self.impulse_contrast, self.impulse_ring, self.phase_low = scalars[2:5]
+        self.star_roughness = StarRoughness.from_values(scalars[5:])
 
     @staticmethod
     def _gaussian_kernel(sigma_px: float) -> np.ndarray:
@@ -529,8 +529,9 @@ class DefaultDetector:
 
     def _step_constants(self, step: int) -> tuple[tuple, tuple[np.ndarray, np.ndarray]]:
         """The PSF's constants for ``_configure`` at sigma step ``step``: (filter gain,
-        Gaussian peak threshold, impulse contrast, impulse ring, then the StarRoughness
-        values of its centroid window), (edge gains)."""
+        Gaussian peak threshold, impulse contrast, impulse ring, the lowest width over
+        the pixel phase (tracker.detect.star_width), then the StarRoughness values of
+        its centroid window), (edge gains)."""
         sigma_px = math.exp(step * _SIGMA_STEP)
         kernel = self._gaussian_kernel(sigma_px)
         # filtered / pixel noise for white noise: sqrt of the 2-D kernel's sum of squares
@@ -540,7 +541,7 @@ class DefaultDetector:
         impulse_contrast, impulse_ring = _impulse_cut(sigma_px)
         roughness = StarRoughness.of(_window_radius(sigma_px), sigma_px)
         return ((filter_gain, peak_threshold, impulse_contrast, impulse_ring,
-                 *roughness.values()),
+                 lowest_phase_width(sigma_px), *roughness.values()),
                 _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols))
 
     def _noise_f_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:

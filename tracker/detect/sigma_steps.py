@@ -2,14 +2,14 @@
 
 The default detector uses PSF sigmas in steps of 3 % (tracker.detect.default)
 and derives a handful of constants from each: the false-alarm threshold of
-its matched filter, the impulse contrasts, a star's roughness and its spread, the
-filter's noise gain at the frame's borders. Each takes a fraction of a
-millisecond of small numpy arithmetic; a PSF that changes from frame to
+its matched filter, the impulse contrasts, a star's roughness and its spread, its
+lowest width over the pixel phase, the filter's noise gain at the frame's borders.
+Each takes a fraction of a millisecond of small numpy arithmetic; a PSF that changes from frame to
 frame (a folder of frames from different lenses, a focus run) would pay it
 on every frame, and even a steady one on each frame that reaches a step
 for the first time. :class:`SigmaSteps` keeps them in a table with one row
 per step of the range the detector handles, made and filled at
-construction (:meth:`SigmaSteps.fill`, 70 steps: about 60 ms once), so a
+construction (:meth:`SigmaSteps.fill`, 70 steps: about 80 ms once), so a
 frame never computes them and memory stays fixed whatever the PSF does.
 """
 
