@@ -656,15 +656,19 @@ class DefaultDetector:
         m = grid.samples.shape[-1]
         dark = grid.samples[..., m // 16: 3 * m // 8].mean(axis=-1)
         sky_noise = np.sqrt(var0 + slope * np.maximum(dark - level0, 0.0))
-        np.logical_and(grid.level_raw - dark > _DARK_SIDE_SIGMAS * sky_noise,
-                       grid.level_raw < 0.9 * self.saturation, out=self.dark_side)
+        # a tile mostly of saturated ground holds sky too when its darkest samples are
+        # the sky's (tracker.detect.sky_split finds them whatever their share)
+        darkest = grid.samples[..., m // 16] - level0 < _DARK_SIDE_SIGMAS * math.sqrt(var0)
+        unclipped = (grid.level_raw < 0.9 * self.saturation) | darkest
+        np.logical_and(grid.level_raw - dark > _DARK_SIDE_SIGMAS * sky_noise, unclipped,
+                       out=self.dark_side)
         # a body in a tile's brightest tenth only (a sliver of ground or the Earth at its
         # edge): its middle is sky, its top far above it, unlike a slope's, whose top
         # stands above its middle no further than its middle above its darker part
         top = grid.samples[..., int(round(_BODY_TOP * (m - 1)))] - grid.level_raw
         self.dark_side |= ((top > _DARK_SIDE_SIGMAS * sky_noise)
                            & (top > _STEP_OVER_SLOPE * (grid.level_raw - dark))
-                           & (grid.level_raw < 0.9 * self.saturation))
+                           & unclipped)
         # sky tiles beside a saturated one (lit ground, the Earth) and the dark side of an
         # edge: their pixels keep the tile's own level and threshold, not a blend with
         # the saturated level beyond the edge (beside glare's core the tiles are bright
