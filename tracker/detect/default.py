@@ -14,7 +14,8 @@ handled, sigma 3.5 px):
 2. ``background``: per-tile median and low-side noise on a coarse grid,
    3x3-median-filtered and interpolated to full size (tracker.detect.background).
    Tiles across a body's edge (or with a sliver of it in their brightest
-   tenth) take the sky's statistics from their darker part, and sky tiles
+   tenth, or with a strip of sky beside saturated ground) take the sky's
+   statistics from their sky pixels (tracker.detect.sky_split), and sky tiles
    beside a saturated one (lit ground, the Earth) keep their own level and
    threshold rather than a blend with full scale. Where such an edge tile's
    darker part is sky, the 3x3 median of its filtered statistics (step 5) is
@@ -642,12 +643,14 @@ class DefaultDetector:
     def _mark_dark_side(self) -> bool:
         """Mark the tiles that straddle the edge of a bright body; whether there are any.
 
-        Such a tile is far brighter (in its interquartile mean) than the
-        frame's sky, by more than ten times the sky's noise, while its darker
-        part (6th-37th percentile) is within that of the sky around it: sky
-        and ground (or glare) in one tile. Its statistics then come from the
-        darker part (tracker.detect.background), so the stars on the sky side
-        meet the sky's background and threshold. Keeps the sky's noise model
+        Such a tile is far brighter (in its interquartile mean) than its
+        darker part (6th-37th percentile), by more than ten times the sky's
+        noise: sky and ground (or glare) in one tile. A tile whose mean is at
+        full scale counts only when its darkest samples (its 6th percentile) are
+        within that of the sky: a strip of sky beside saturated ground. Its
+        statistics then come from its sky pixels (tracker.detect.background,
+        tracker.detect.sky_split), so the stars on the sky side meet the sky's
+        background and threshold. Keeps the sky's noise model
         (tracker.detect.surroundings.sky_noise_model) in ``sky_model``.
         """
         self.sky_model = sky_noise_model(self.level, self.noise, self.saturation)
