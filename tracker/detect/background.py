@@ -34,7 +34,7 @@ import numpy as np
 
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.order import median
-from tracker.detect.sky_split import sky_part, sky_statistics
+from tracker.detect.sky_split import sky_class_size, sky_part
 from tracker.normal import erf
 
 __all__ = ["BackgroundGrid", "QUANTISATION_NOISE_ADU"]
@@ -166,18 +166,22 @@ class BackgroundGrid:
 
     def stats(self, padded: np.ndarray, level: np.ndarray, noise: np.ndarray,
               floor: float, upper: bool = False, minus: bool = False,
-              dark_side: np.ndarray | None = None) -> None:
+              dark_side: np.ndarray | None = None,
+              sky_split: np.ndarray | None = None) -> None:
         """Per-tile level and noise (grid shape, units of ``padded``) into the given arrays.
 
         ``padded`` is float32 or uint16. With ``minus`` the statistics are
         those of ``padded`` less the image the last :meth:`sample_minus` call
         read, computed on the sampled pixels only. Tiles marked in
-        ``dark_side`` (bool, grid shape) take both from their sky pixels, the
-        darker class of their samples (tracker.detect.sky_split.sky_statistics;
-        with ``minus``, the darkest samples in the sky's share the last call
-        without it found, tracker.detect.sky_split.sky_part): a tile across a
-        horizon or the edge of glare then has the sky's level and noise, not a
-        blend of sky and ground.
+        ``dark_side`` (bool, grid shape) take both from the darker part of
+        their sky pixels (tracker.detect.sky_split.sky_part: level the mean of
+        their 6th-37th percentiles, noise the 10th-30th percentile distance
+        over 0.757): a tile across a horizon or the edge of glare then has the
+        sky's level and noise, not a blend of sky and ground. Its sky pixels
+        are all its samples, but in the tiles also marked in ``sky_split``,
+        whose sky is a minority: there the darker class of a split of the
+        samples (tracker.detect.sky_split.sky_class_size). With ``minus``
+        each tile keeps the share of sky the last call without it found.
 
         With ``upper`` the noise is also at least the distance from the level
         up to the 84.13th percentile, and at least the standard deviation of
@@ -213,12 +217,13 @@ class BackgroundGrid:
         if lattice:
             np.sum(values > self.level_raw[..., None], axis=-1, out=self.above)
         split = dark_side is not None and np.any(dark_side)
-        if split and minus:
-            self.level_raw[dark_side], sky_noise = sky_part(values[dark_side],
-                                                            self.sky_size[dark_side])
-        elif split:
-            self.level_raw[dark_side], sky_noise, self.sky_size[dark_side] = sky_statistics(
-                values[dark_side], self.samples[dark_side])
+        if split:
+            if not minus:
+                self.sky_size[dark_side] = m
+                if sky_split is not None and np.any(sky_split):
+                    self.sky_size[sky_split] = sky_class_size(self.samples[sky_split])
+            self.level_raw[dark_side], sky_noise = sky_part(
+                values[dark_side], self.samples[dark_side], self.sky_size[dark_side])
         self._smooth(self.level_raw, level)
         np.subtract(self.middle, self.level_raw[..., None], out=self.deviation)
         np.abs(self.deviation, out=self.deviation)
