@@ -34,6 +34,7 @@ import numpy as np
 
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.order import median
+from tracker.detect.sky_split import sky_class_size, sky_part
 from tracker.normal import erf
 
 __all__ = ["BackgroundGrid", "QUANTISATION_NOISE_ADU"]
@@ -42,7 +43,6 @@ QUANTISATION_NOISE_ADU = float(np.sqrt(1.0 / 12.0))
 _MEAN_ABS_IN_IQR = 0.3247  # E|z| for a standard normal z restricted to its middle half
 _ONE_SIGMA_ABOVE = 0.84134  # fraction of a Gaussian below mean + sigma
 _TRIM_FRACTION = 1.0 / 16.0  # trimmed noise: drop this fraction of samples at each end
-_DECILES_10_30 = 0.7573   # distance from a Gaussian's 10th to its 30th percentile, in sigma
 _DITHER_SEED = 12         # of the fixed dither of integer samples (any seed will do)
 
 
@@ -114,6 +114,7 @@ class BackgroundGrid:
         self.deviation = np.zeros(self.middle.shape, np.float32)
         self.raw = np.zeros(self.grid_shape, np.float32)
         self.level_raw = np.zeros(self.grid_shape, np.float32)
+        self.sky_size = np.zeros(self.grid_shape, np.intp)   # sky samples of dark_side tiles
         self.upper = np.zeros(self.grid_shape, np.float32)
         self.trimmed = np.zeros(self.grid_shape, np.float32)
         self.smoothed = np.zeros(self.grid_shape, np.float32)
@@ -158,17 +159,22 @@ class BackgroundGrid:
 
     def stats(self, padded: np.ndarray, level: np.ndarray, noise: np.ndarray,
               floor: float, upper: bool = False, minus: bool = False,
-              dark_side: np.ndarray | None = None) -> None:
+              dark_side: np.ndarray | None = None,
+              sky_split: np.ndarray | None = None) -> None:
         """Per-tile level and noise (grid shape, units of ``padded``) into the given arrays.
 
         ``padded`` is float32 or uint16. With ``minus`` the statistics are
         those of ``padded`` less the image the last :meth:`sample_minus` call
         read, computed on the sampled pixels only. Tiles marked in
         ``dark_side`` (bool, grid shape) take both from the darker part of
-        their samples (the 6th to 37th percentile: level their mean, noise the
-        10th-30th percentile distance over 0.757, its value for a Gaussian): a
-        tile across a horizon or the edge of glare then has the sky's level
-        and noise, not a blend of sky and ground.
+        their sky pixels (tracker.detect.sky_split.sky_part: level the mean of
+        their 6th-37th percentiles, noise the 10th-30th percentile distance
+        over 0.757): a tile across a horizon or the edge of glare then has the
+        sky's level and noise, not a blend of sky and ground. Its sky pixels
+        are all its samples, but in the tiles also marked in ``sky_split``,
+        whose sky is a minority: there the darker class of a split of the
+        samples (tracker.detect.sky_split.sky_class_size). With ``minus``
+        each tile keeps the share of sky the last call without it found.
 
         With ``upper`` the noise is also at least the distance from the level
         up to the 84.13th percentile, and at least the standard deviation of
@@ -204,9 +210,14 @@ class BackgroundGrid:
             np.greater(values, self.level_raw[..., None], out=self.is_above)
             np.einsum("...k->...", self.is_above.view(np.uint8), out=self.above,
                       dtype=np.int32, casting="unsafe")
-        if dark_side is not None and np.any(dark_side):
-            dark = values[dark_side]
-            self.level_raw[dark_side] = dark[:, m // 16: 3 * m // 8].mean(axis=-1)
+        split = dark_side is not None and np.any(dark_side)
+        if split:
+            if not minus:
+                self.sky_size[dark_side] = m
+                if sky_split is not None and np.any(sky_split):
+                    self.sky_size[sky_split] = sky_class_size(self.samples[sky_split])
+            self.level_raw[dark_side], sky_noise = sky_part(
+                values[dark_side], self.samples[dark_side], self.sky_size[dark_side])
         self._smooth(self.level_raw, level)
         np.subtract(self.middle, self.level_raw[..., None], out=self.deviation)
         np.abs(self.deviation, out=self.deviation)
@@ -227,10 +238,9 @@ class BackgroundGrid:
             np.sqrt(self.moment2, out=self.trimmed)
             np.multiply(self.trimmed, 1.0 / self._trimmed_std, out=self.trimmed)
             estimates += [self.upper, self.trimmed]
-        if dark_side is not None and np.any(dark_side):
-            spread = self._dark_side(dark_side)
+        if split:
             for estimate in estimates:
-                estimate[dark_side] = spread
+                estimate[dark_side] = sky_noise
         if lattice:
             # the dithered samples are the integers plus an independent uniform of
             # variance 1/12: the integers' own spread is what remains (the trimmed
@@ -256,13 +266,6 @@ class BackgroundGrid:
         the :meth:`stats` calls with ``minus`` until the next call (one gather of an
         image fixed for a frame, which a worker thread can make ahead)."""
         np.take(minus.ravel(), self.index, out=self.minus_samples, mode="clip")
-
-    def _dark_side(self, dark_side: np.ndarray) -> np.ndarray:
-        """Noise of the marked tiles from their 10th-30th percentile samples."""
-        m = self.samples.shape[-1]
-        dark = self.samples[dark_side]
-        spread = dark[:, int(round(0.3 * (m - 1)))] - dark[:, int(round(0.1 * (m - 1)))]
-        return spread / _DECILES_10_30
 
     def skewness(self, star_free_sigma: float = 5.0, min_fraction: float = 0.5) -> float:
         """Median skewness of the star-free tiles of the last :meth:`stats` call (``upper``).

@@ -14,7 +14,8 @@ handled, sigma 3.5 px):
 2. ``background``: per-tile median and low-side noise on a coarse grid,
    3x3-median-filtered and interpolated to full size (tracker.detect.background).
    Tiles across a body's edge (or with a sliver of it in their brightest
-   tenth) take the sky's statistics from their darker part, and sky tiles
+   tenth, or with a strip of sky beside saturated ground) take the sky's
+   statistics from their sky pixels (tracker.detect.sky_split), and sky tiles
    beside a saturated one (lit ground, the Earth) keep their own level and
    threshold rather than a blend with full scale. Where such an edge tile's
    darker part is sky, the 3x3 median of its filtered statistics (step 5) is
@@ -420,6 +421,7 @@ class DefaultDetector:
         self.beside_body = np.zeros(grid_shape, np.bool_)   # sky tiles beside a body's
         self.near_body = np.zeros(grid_shape, np.bool_)     # bodies' tiles and their neighbours
         self.sky_edge = np.zeros(grid_shape, np.bool_)   # edge tiles whose darker part is sky
+        self.sky_split = np.zeros(grid_shape, np.bool_)  # edge tiles mostly of a body
         self.sky_pad = np.zeros((grid_shape[0] + 2, grid_shape[1] + 2), np.float32)
         self.sky_pad_offsets = (np.arange(-1, 2)[:, None] * self.sky_pad.shape[1]
                                 + np.arange(-1, 2)[None, :]).ravel()
@@ -567,7 +569,7 @@ class DefaultDetector:
                    upper=True)
         if self._mark_dark_side():
             grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
-                       upper=True, dark_side=self.dark_side)
+                       upper=True, dark_side=self.dark_side, sky_split=self.sky_split)
             self.sky_model = sky_noise_model(self.level, self.noise, self.saturation)
         # the background's interpolation on the filter's worker (idle until step 4; the
         # impulse stage's is still busy with the median), while the impulse limit's is
@@ -643,12 +645,16 @@ class DefaultDetector:
     def _mark_dark_side(self) -> bool:
         """Mark the tiles that straddle the edge of a bright body; whether there are any.
 
-        Such a tile is far brighter (in its interquartile mean) than the
-        frame's sky, by more than ten times the sky's noise, while its darker
-        part (6th-37th percentile) is within that of the sky around it: sky
-        and ground (or glare) in one tile. Its statistics then come from the
-        darker part (tracker.detect.background), so the stars on the sky side
-        meet the sky's background and threshold. Keeps the sky's noise model
+        Such a tile is far brighter (in its interquartile mean) than its
+        darker part (6th-37th percentile), by more than ten times the sky's
+        noise: sky and ground (or glare) in one tile. Its statistics then come
+        from its sky pixels (tracker.detect.background), so the stars on the
+        sky side meet the sky's background and threshold. A tile whose mean
+        is the body's (more than ten sky noises above the sky) while its
+        darkest samples (its 6th percentile) are the sky's, a strip of sky
+        beside ground, saturated or not, is also marked in ``sky_split``: its
+        sky pixels are the darker class of a split of its samples
+        (tracker.detect.sky_split), not its darker part. Keeps the sky's noise model
         (tracker.detect.surroundings.sky_noise_model) in ``sky_model``.
         """
         self.sky_model = sky_noise_model(self.level, self.noise, self.saturation)
@@ -657,15 +663,22 @@ class DefaultDetector:
         m = grid.samples.shape[-1]
         dark = grid.samples[..., m // 16: 3 * m // 8].mean(axis=-1)
         sky_noise = np.sqrt(var0 + slope * np.maximum(dark - level0, 0.0))
-        np.logical_and(grid.level_raw - dark > _DARK_SIDE_SIGMAS * sky_noise,
-                       grid.level_raw < 0.9 * self.saturation, out=self.dark_side)
+        # a tile mostly of ground (its mean the ground's, saturated or not) holds sky too
+        # when its darkest samples are the sky's: a split of its samples finds them
+        # (tracker.detect.sky_split), where its darker part would reach into the ground
+        sky_scale = _DARK_SIDE_SIGMAS * math.sqrt(var0)
+        np.less(grid.samples[..., m // 16] - level0, sky_scale, out=self.sky_split)
+        self.sky_split &= grid.level_raw - level0 > sky_scale
+        unclipped = (grid.level_raw < 0.9 * self.saturation) | self.sky_split
+        np.logical_and(grid.level_raw - dark > _DARK_SIDE_SIGMAS * sky_noise, unclipped,
+                       out=self.dark_side)
         # a body in a tile's brightest tenth only (a sliver of ground or the Earth at its
         # edge): its middle is sky, its top far above it, unlike a slope's, whose top
         # stands above its middle no further than its middle above its darker part
         top = grid.samples[..., int(round(_BODY_TOP * (m - 1)))] - grid.level_raw
         self.dark_side |= ((top > _DARK_SIDE_SIGMAS * sky_noise)
                            & (top > _STEP_OVER_SLOPE * (grid.level_raw - dark))
-                           & (grid.level_raw < 0.9 * self.saturation))
+                           & unclipped)
         # sky tiles beside a saturated one (lit ground, the Earth) and the dark side of an
         # edge: their pixels keep the tile's own level and threshold, not a blend with
         # the saturated level beyond the edge (beside glare's core the tiles are bright
@@ -675,6 +688,7 @@ class DefaultDetector:
         np.copyto(self.beside_body, self.near_body)
         self.beside_body &= grid.level_raw - level0 < _DARK_SIDE_SIGMAS * math.sqrt(var0)
         self.beside_body |= self.dark_side
+        self.sky_split &= self.dark_side
         return bool(self.dark_side.any())
 
     def psf_of(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
