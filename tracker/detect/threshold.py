@@ -338,8 +338,7 @@ def _saddlepoint_quantile(x, log_p, a, m, log_target: float) -> float | None:
     both ends close in, superlinearly) until the bracket is ``_T_TOLERANCE``
     of t wide or log P is within ``_LOG_P_TOLERANCE`` of the target: some ten
     evaluations of the cumulants where bisection to the same width took
-    forty. Returns y at the evaluated
-    t nearest the target.
+    forty. Returns y at the evaluated t nearest the target.
     """
     hi = 1.0
     y_hi, g_hi = _log_lr_tail(hi, x, log_p, a, m)
