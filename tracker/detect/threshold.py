@@ -125,7 +125,7 @@ class NoiseTail:
        P(Y > y) = 1 - Phi(w) + phi(w) (1/v - 1/w), w = sign(t) sqrt(2 (t y - K_Y(t))),
        v = t sqrt(K_Y''(t)), y = K_Y'(t), accurate to a few per cent of the
        probability far into the tail for such sums, is solved for t by
-       bisection on log P.
+       regula falsi on log P.
 
     Every array is made at construction (for the grid) or in
     :meth:`configure` (for the kernel).
