@@ -42,8 +42,8 @@ function. The 3 x 3 normal equations are solved in closed form (the
 adjugate of the symmetric matrix), all stars at once.
 
 All arrays are preallocated for ``chunk`` windows of up to ``max_side``^2
-pixels; the per-axis fractions and their products are the only per-call
-temporaries (a few kB).
+pixels (the table's entries for them too); the per-axis fractions and their
+products are the only per-call temporaries (a few kB).
 """
 
 from __future__ import annotations
@@ -88,6 +88,8 @@ class PixelGaussianFit:
         self._grad = np.zeros((self.chunk, 3), np.float64)
         self._flux = np.zeros(self.chunk, np.float64)
         self._at = np.zeros(2 * self.chunk * self.max_side, np.float64)
+        self._node = np.zeros(2 * self.chunk * self.max_side, np.intp)
+        self._entries = np.zeros(2 * self.chunk * self.max_side * 4, np.float64)
         self._pos = np.zeros((2, self.chunk), np.float64)
         self.side = 0
         self.sigma = 0.0
@@ -229,9 +231,11 @@ class PixelGaussianFit:
         np.subtract(self._nodes, (pos * _TABLE_PER_PX)[:, :, None], out=at)
         np.maximum(at, 0.0, out=at)
         np.minimum(at, self._last, out=at)
-        node = at.astype(np.intp)
+        node = self._node[: at.size].reshape(at.shape)
+        np.copyto(node, at, casting="unsafe")
         np.subtract(at, node, out=at)                        # the way to the next node
-        rows = self._table.take(node, axis=0)                # (2, m, side, 4)
+        rows = self._entries[: at.size * 4].reshape(*at.shape, 4)
+        np.take(self._table, node, axis=0, out=rows)         # (2, m, side, 4)
         frac = rows[..., 0] + at * rows[..., 1]
         dfrac = rows[..., 2] + at * rows[..., 3]
         return frac[0], frac[1], dfrac[0], dfrac[1]
