@@ -8,9 +8,13 @@ fancy indexing, with no Python loop over windows or stars:
 1. ``stack``: the windows copied out of the frame (one gather from a view
    of all its windows).
 2. ``background``: each window's sky level and pixel noise from its border
-   ring (``RING_PX`` wide): the median, and the RMS of the pixels within 3
-   sigma of it (sigma from the interquartile range; the RMS corrected
-   for the clip, at least the quantisation noise). The planner centres a
+   ring (``RING_PX`` wide): the mean and the RMS of the pixels within 3
+   sigma of its median (sigma from the interquartile range; the RMS
+   corrected for the clip, at least the quantisation noise). A median of
+   whole ADU misses the sky's fraction of an ADU, and the clip of
+   whole-ADU quartiles is anywhere in 2.4-3.2 sigmas at a noise of 2-3 ADU:
+   the median and an RMS corrected for 3 sigmas read stars' SNR 3-8 %
+   above the truth's on realistic frames, these within 2 %. The planner centres a
    predicted star in its window, so the ring holds sky.
 3. ``filter``: the matched filter (a Gaussian of the pixel-integrated PSF's
    sigma, cut at round(2 sigma) like the full frame's) over the stack,
@@ -97,6 +101,7 @@ from tracker.detect.psf import PsfEstimate
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.stars import StarTable
 from tracker.detect.threshold import gaussian_peak_threshold
+from tracker.normal import erf
 from tracker.timing import StageTimer
 
 __all__ = ["StampDetector", "RING_PX"]
@@ -104,7 +109,10 @@ __all__ = ["StampDetector", "RING_PX"]
 RING_PX = 2                    # width of the border ring a window's sky is taken from
 _IQR_SIGMAS = 1.349            # a Gaussian's interquartile range in sigmas
 _CLIP_SIGMAS = 3.0             # the ring's noise: RMS of the pixels within this many sigma
-_CLIPPED_VARIANCE = 0.9707     # ... which keeps this share of a Gaussian's variance
+_CLIP_STEPS = 3                # fixed-point steps to the share of the noise's variance the
+                               # clip keeps (each cuts the error to a quarter)
+_TWO_PDF0 = math.sqrt(2.0 / math.pi)   # twice the standard normal density at 0
+_SQRT_HALF = math.sqrt(0.5)
 _SIGMA_STEP = math.log(1.03)   # PSF sigmas used in steps of 3 % (as the full frame does)
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
 _TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
@@ -268,17 +276,27 @@ class StampDetector:
         np.multiply(m0 + m1, 0.5, out=self.level)
         ring = pixels.astype(np.float32)
         # quartiles of whole ADU are coarse for a noise of a few ADU: they only set the
-        # clip of the RMS that gives the noise (Gaussian noise clipped at _CLIP_SIGMAS
-        # keeps _CLIPPED_VARIANCE of its variance)
+        # clip of the mean that gives the level and of the RMS that gives the noise
         clip = np.maximum((q3 - q1) * (_CLIP_SIGMAS / _IQR_SIGMAS), _CLIP_SIGMAS)
         np.subtract(ring, self.level[:, None], out=ring)
         inside = np.abs(ring) <= clip[:, None]
-        np.multiply(ring, ring, out=ring)
+        count = np.maximum(inside.sum(axis=1), 1)
         ring *= inside
-        var = (ring.sum(axis=1) / np.maximum(inside.sum(axis=1), 1)
-               / _CLIPPED_VARIANCE)
-        np.sqrt(var, out=self.noise)
-        np.maximum(self.noise, QUANTISATION_NOISE_ADU, out=self.noise)
+        # the median of whole ADU misses the sky's fraction of an ADU: the clipped mean
+        shift = ring.sum(axis=1) / count
+        self.level += shift
+        np.multiply(ring, ring, out=ring)
+        var = np.maximum(ring.sum(axis=1) / count - shift * shift, 0.0)
+        # Gaussian noise clipped at a sigmas keeps kept(a) = 1 - 2 a pdf(a) / erf(a /
+        # sqrt 2) of its variance: the clip in sigmas from the noise it gives, from the
+        # clipped RMS (the clip of whole-ADU quartiles lies anywhere in 2.4-3.2 sigmas
+        # for a noise of 2-3 ADU)
+        noise = np.sqrt(var)
+        for _ in range(_CLIP_STEPS):
+            a = clip / np.maximum(noise, QUANTISATION_NOISE_ADU)
+            kept = 1.0 - _TWO_PDF0 * a * np.exp(-0.5 * a * a) / erf(a * _SQRT_HALF)
+            noise = np.sqrt(var / kept)
+        np.maximum(noise, QUANTISATION_NOISE_ADU, out=self.noise)
 
     def _at_frame_edges(self, origins: np.ndarray) -> None:
         """The filtered windows' pixels within the filter's half-width of a border that is
