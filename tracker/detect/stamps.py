@@ -109,10 +109,6 @@ __all__ = ["StampDetector", "RING_PX"]
 RING_PX = 2                    # width of the border ring a window's sky is taken from
 _IQR_SIGMAS = 1.349            # a Gaussian's interquartile range in sigmas
 _CLIP_SIGMAS = 3.0             # the ring's noise: RMS of the pixels within this many sigma
-_CLIP_STEPS = 3                # fixed-point steps to the share of the noise's variance the
-                               # clip keeps (each cuts the error to a quarter)
-_TWO_PDF0 = math.sqrt(2.0 / math.pi)   # twice the standard normal density at 0
-_SQRT_HALF = math.sqrt(0.5)
 _SIGMA_STEP = math.log(1.03)   # PSF sigmas used in steps of 3 % (as the full frame does)
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
 _TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
@@ -128,6 +124,18 @@ _MAX_SHIFT_PX = 1.5            # the fit's centre stays this close to the peak p
 _SAME_STAR_PX = 1.0            # one star's detections in overlapping windows lie closer
 _NEIGHBOURS = np.ones((3, 3), np.uint8)
 _MAX_SIGMA_PX = 3.5            # the widest optical PSF sigma the buffers are sized for, px
+
+
+def _clipped_rms_table() -> tuple[np.ndarray, np.ndarray]:
+    """(clip / clipped RMS, clip in sigmas) of Gaussian noise clipped at a = 0.5-50 sigmas
+    about its mean: the RMS within the clip is sigma sqrt(kept(a)), kept(a) = 1 - 2 a
+    pdf(a) / erf(a / sqrt 2)."""
+    a = np.concatenate((np.arange(0.5, 8.0, 0.01), [50.0]))
+    kept = 1.0 - math.sqrt(2.0 / math.pi) * a * np.exp(-0.5 * a * a) / erf(a / math.sqrt(2.0))
+    return a / np.sqrt(kept), a
+
+
+_CLIP_OVER_RMS, _CLIP_IN_SIGMAS = _clipped_rms_table()
 
 
 def _effective_sigma(sigma_px: float) -> float:
@@ -291,12 +299,11 @@ class StampDetector:
         # sqrt 2) of its variance: the clip in sigmas from the noise it gives, from the
         # clipped RMS (the clip of whole-ADU quartiles lies anywhere in 2.4-3.2 sigmas
         # for a noise of 2-3 ADU)
-        noise = np.sqrt(var)
-        for _ in range(_CLIP_STEPS):
-            a = clip / np.maximum(noise, QUANTISATION_NOISE_ADU)
-            kept = 1.0 - _TWO_PDF0 * a * np.exp(-0.5 * a * a) / erf(a * _SQRT_HALF)
-            noise = np.sqrt(var / kept)
-        np.maximum(noise, QUANTISATION_NOISE_ADU, out=self.noise)
+        # ``clip`` over the clipped RMS is a / sqrt(kept(a)), which rises with a: the
+        # clip in sigmas read from a table of it
+        rms = np.sqrt(var)
+        sigmas = np.interp(clip / np.maximum(rms, 1e-6), _CLIP_OVER_RMS, _CLIP_IN_SIGMAS)
+        np.maximum(clip / sigmas, QUANTISATION_NOISE_ADU, out=self.noise)
 
     def _at_frame_edges(self, origins: np.ndarray) -> None:
         """The filtered windows' pixels within the filter's half-width of a border that is
@@ -304,14 +311,15 @@ class StampDetector:
         docstring, step 3), in place."""
         h, w = self.frame_shape
         c, half, gain = self.cell, self.half, self.edge_gain
+        low, high = origins == 0, origins == (w - c, h - c)
+        if not (low.any() or high.any()):
+            return
         filt = self.filt.reshape(c, self.cells, -1)
-        for at, rows, cols, by in ((origins[:, 1] == 0, slice(0, half), slice(0, c),
-                                    gain[:, None, None]),
-                                   (origins[:, 1] == h - c, slice(c - half, c), slice(0, c),
+        for at, rows, cols, by in ((low[:, 1], slice(0, half), slice(0, c), gain[:, None, None]),
+                                   (high[:, 1], slice(c - half, c), slice(0, c),
                                     gain[::-1, None, None]),
-                                   (origins[:, 0] == 0, slice(None), slice(0, half), gain),
-                                   (origins[:, 0] == w - c, slice(None), slice(c - half, c),
-                                    gain[::-1])):
+                                   (low[:, 0], slice(None), slice(0, half), gain),
+                                   (high[:, 0], slice(None), slice(c - half, c), gain[::-1])):
             which = np.flatnonzero(at)
             if len(which):
                 filt[rows, which, cols] /= by
@@ -371,9 +379,8 @@ class StampDetector:
         top = origins[win, 1] + py - corner
         left = origins[win, 0] + px - corner
         cut = (top < 0) | (left < 0) | (top > h - big) | (left > w - big)
-        wide = np.empty((m, big, big), np.float32)
-        whole = ~cut
-        wide[whole] = window_view(image, big)[top[whole], left[whole]]
+        wide = window_view(image, big)[np.clip(top, 0, h - big),
+                                        np.clip(left, 0, w - big)].astype(np.float32)
         inside = None
         if cut.any():
             # the frame's border pixels repeated beyond it (read only by the median)
