@@ -8,13 +8,9 @@ fancy indexing, with no Python loop over windows or stars:
 1. ``stack``: the windows copied out of the frame (one gather from a view
    of all its windows).
 2. ``background``: each window's sky level and pixel noise from its border
-   ring (``RING_PX`` wide): the mean and the RMS of the pixels within 3
-   sigma of its median (sigma from the interquartile range; the RMS
-   corrected for the clip, at least the quantisation noise). A median of
-   whole ADU misses the sky's fraction of an ADU, and the clip of
-   whole-ADU quartiles is anywhere in 2.4-3.2 sigmas at a noise of 2-3 ADU:
-   the median and an RMS corrected for 3 sigmas read stars' SNR 3-8 %
-   above the truth's on realistic frames, these within 2 %. The planner centres a
+   ring (``RING_PX`` wide): the median, and the RMS of the pixels within 3
+   sigma of it (sigma from the interquartile range; the RMS corrected
+   for the clip, at least the quantisation noise). The planner centres a
    predicted star in its window, so the ring holds sky.
 3. ``filter``: the matched filter (a Gaussian of the pixel-integrated PSF's
    sigma, cut at round(2 sigma) like the full frame's) over the stack,
@@ -101,7 +97,6 @@ from tracker.detect.psf import PsfEstimate
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.stars import StarTable
 from tracker.detect.threshold import gaussian_peak_threshold
-from tracker.normal import erf
 from tracker.timing import StageTimer
 
 __all__ = ["StampDetector", "RING_PX"]
@@ -109,6 +104,7 @@ __all__ = ["StampDetector", "RING_PX"]
 RING_PX = 2                    # width of the border ring a window's sky is taken from
 _IQR_SIGMAS = 1.349            # a Gaussian's interquartile range in sigmas
 _CLIP_SIGMAS = 3.0             # the ring's noise: RMS of the pixels within this many sigma
+_CLIPPED_VARIANCE = 0.9707     # ... which keeps this share of a Gaussian's variance
 _SIGMA_STEP = math.log(1.03)   # PSF sigmas used in steps of 3 % (as the full frame does)
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
 _TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
@@ -124,18 +120,6 @@ _MAX_SHIFT_PX = 1.5            # the fit's centre stays this close to the peak p
 _SAME_STAR_PX = 1.0            # one star's detections in overlapping windows lie closer
 _NEIGHBOURS = np.ones((3, 3), np.uint8)
 _MAX_SIGMA_PX = 3.5            # the widest optical PSF sigma the buffers are sized for, px
-
-
-def _clipped_rms_table() -> tuple[np.ndarray, np.ndarray]:
-    """(clip / clipped RMS, clip in sigmas) of Gaussian noise clipped at a = 0.5-50 sigmas
-    about its mean: the RMS within the clip is sigma sqrt(kept(a)), kept(a) = 1 - 2 a
-    pdf(a) / erf(a / sqrt 2)."""
-    a = np.concatenate((np.arange(0.5, 8.0, 0.01), [50.0]))
-    kept = 1.0 - math.sqrt(2.0 / math.pi) * a * np.exp(-0.5 * a * a) / erf(a / math.sqrt(2.0))
-    return a / np.sqrt(kept), a
-
-
-_CLIP_OVER_RMS, _CLIP_IN_SIGMAS = _clipped_rms_table()
 
 
 def _effective_sigma(sigma_px: float) -> float:
@@ -284,26 +268,17 @@ class StampDetector:
         np.multiply(m0 + m1, 0.5, out=self.level)
         ring = pixels.astype(np.float32)
         # quartiles of whole ADU are coarse for a noise of a few ADU: they only set the
-        # clip of the mean that gives the level and of the RMS that gives the noise
+        # clip of the RMS that gives the noise (Gaussian noise clipped at _CLIP_SIGMAS
+        # keeps _CLIPPED_VARIANCE of its variance)
         clip = np.maximum((q3 - q1) * (_CLIP_SIGMAS / _IQR_SIGMAS), _CLIP_SIGMAS)
         np.subtract(ring, self.level[:, None], out=ring)
         inside = np.abs(ring) <= clip[:, None]
-        count = np.maximum(inside.sum(axis=1), 1)
-        ring *= inside
-        # the median of whole ADU misses the sky's fraction of an ADU: the clipped mean
-        shift = ring.sum(axis=1) / count
-        self.level += shift
         np.multiply(ring, ring, out=ring)
-        var = np.maximum(ring.sum(axis=1) / count - shift * shift, 0.0)
-        # Gaussian noise clipped at a sigmas keeps kept(a) = 1 - 2 a pdf(a) / erf(a /
-        # sqrt 2) of its variance: the clip in sigmas from the noise it gives, from the
-        # clipped RMS (the clip of whole-ADU quartiles lies anywhere in 2.4-3.2 sigmas
-        # for a noise of 2-3 ADU)
-        # ``clip`` over the clipped RMS is a / sqrt(kept(a)), which rises with a: the
-        # clip in sigmas read from a table of it
-        rms = np.sqrt(var)
-        sigmas = np.interp(clip / np.maximum(rms, 1e-6), _CLIP_OVER_RMS, _CLIP_IN_SIGMAS)
-        np.maximum(clip / sigmas, QUANTISATION_NOISE_ADU, out=self.noise)
+        ring *= inside
+        var = (ring.sum(axis=1) / np.maximum(inside.sum(axis=1), 1)
+               / _CLIPPED_VARIANCE)
+        np.sqrt(var, out=self.noise)
+        np.maximum(self.noise, QUANTISATION_NOISE_ADU, out=self.noise)
 
     def _at_frame_edges(self, origins: np.ndarray) -> None:
         """The filtered windows' pixels within the filter's half-width of a border that is
