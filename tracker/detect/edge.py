@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["beyond_frame", "cut_axes", "inward_starts", "judge_whole"]
+__all__ = ["beyond_frame", "cut_axes", "inside_norms", "inward_starts", "judge_whole"]
 
 _MERGE_SIGMAS = 1.5   # a star and its mirror merge within sqrt(2) sigmas (pixel-integrated)
 
@@ -51,6 +51,15 @@ def cut_axes(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int],
     col) reaches beyond the frame's left or right edge, and beyond its top or bottom."""
     h, w = shape
     return (cols < radius) | (cols > w - 1 - radius), (rows < radius) | (rows > h - 1 - radius)
+
+
+def inside_norms(kernel: np.ndarray, depths: np.ndarray) -> np.ndarray:
+    """The norms (sqrt of the sum of squares) of a symmetric 1-D ``kernel``'s taps that lie
+    in the frame when it is centred ``depths`` px from the border pixel inward (0: on
+    it), nothing beyond the edge: the matched filter's noise gain there, read without the
+    mirror, over the pixel noise."""
+    half = len(kernel) // 2
+    return np.sqrt(np.cumsum(kernel[::-1] ** 2)[::-1][np.maximum(half - depths, 0)])
 
 
 def inward_starts(cand: np.ndarray, rows: np.ndarray, cols: np.ndarray,
@@ -72,9 +81,7 @@ def inward_starts(cand: np.ndarray, rows: np.ndarray, cols: np.ndarray,
     t = np.arange(-half, half + 1, dtype=np.float64)
     kernel = np.exp(-0.5 * (t / sigma) ** 2)
     depth = np.arange(reach + half + 1)       # pixels from the border inward
-    # the template's norm at each depth q: its taps from the border inward, t >= -q
-    norm = np.sqrt(np.cumsum(kernel[::-1] ** 2)[::-1][np.maximum(half - np.arange(reach + 1),
-                                                                 0)])
+    norm = inside_norms(kernel, np.arange(reach + 1))     # the template's at each depth
     along = np.arange(-1, 2)
     for pos, size, step_px, along_px in ((cols, w, 1, stride), (rows, h, stride, 1)):
         for low in (True, False):

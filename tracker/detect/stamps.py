@@ -16,17 +16,27 @@ fancy indexing, with no Python loop over windows or stars:
    sigma, cut at round(2 sigma) like the full frame's) over the stack,
    background subtracted, by one OpenCV call on the windows laid side by
    side as one wide image (OpenCV filters along rows: twice as fast as on a
-   tall stack of window-wide rows); a window's first and last columns mix
-   with its neighbours' there, which ``margin`` keeps peaks away from.
+   tall stack of window-wide rows), each window followed by a gap of zeros
+   one pixel wider than the filter's half-width and the image bordered by
+   zeros: no window's filtered pixels or their 3 x 3 maxima read another
+   window, and at the frame's edge the filter takes the light beyond it as
+   none and is divided by the noise gain of its taps inside the frame
+   (tracker.detect.edge.inside_norms): the response
+   tracker.detect.edge.inward_starts reads for the full frame, whose
+   reflected filter needs it (no mirror merges with a star here), and the
+   same false-alarm rate as inside.
 4. ``peaks``: local maxima (3 x 3) of the filtered stack above k times each
    window's filtered noise, k the full frame's for the false-alarm budget
    ``detect.false_alarms_per_frame`` (tracker.detect.threshold: the same
    stars as the full frame, fewer false ones in the smaller area), at least
-   ``margin`` px from a window's inner borders and a stamp's reach from the
-   frame's edge; one per frame pixel (windows overlap), most significant
-   first, at most ``max_candidates``.
+   ``margin`` px from a window's inner borders (there the filter sees
+   nothing of the frame beyond the window) and anywhere up to a border that
+   is the frame's edge; one per frame pixel (windows overlap), most
+   significant first, at most ``max_candidates``.
 5. ``impulses``: a stamp of radius 3 sigma around each peak is read from
-   the frame, and every pixel of it tested against its 3 x 3 median with
+   the frame (cut at its edge: the pixels beyond it repeat the border's for
+   the median, as OpenCV's median does at the full frame's border, and then
+   hold no light), and every pixel of it inside the frame tested against its 3 x 3 median with
    the full frame's rule (tracker.detect.impulse): standing off it by more
    than ``detect.impulse_sigma`` pixel noise and by more than the contrast
    no star a tenth sharper than the PSF reaches, it is an impulse and takes
@@ -35,7 +45,10 @@ fancy indexing, with no Python loop over windows or stars:
    a one-pixel hit and is dropped (counted ``hot_pixels``).
 6. ``centroid``: the fit of the pixel-integrated PSF (tracker.detect.fit)
    to the stamp, two Gauss-Newton steps from the filtered peak's parabolic
-   vertex (within 0.003 px RMS of the converged centres); stars
+   vertex (within 0.003 px RMS of the converged centres; four for a star the
+   frame's edge cuts, whose flux and centre across the edge trade off: with
+   two, 25 of 128 faint stars centred 1 px beyond the edge ended inside the
+   frame, with four 5, at PSF sigma 1.2 px); stars
    closer than the blend radius (``detect.blend_radius_px``, else twice the
    centroid's) to another peak are BLENDED and take the Gaussian-windowed
    centroid instead, as the full frame does (tracker.detect.windowed), two
@@ -47,7 +60,13 @@ fancy indexing, with no Python loop over windows or stars:
    and elongated like a particle's track, are rejected (counted
    ``sharp_spots`` and ``cosmic_rays``) when at least ``detect.sharp_min_snr``
    significant; ELONGATED, SATURATED, BLENDED flags as the full frame sets
-   them. A star seen in two overlapping windows is reported once.
+   them. A star the frame's edge cuts is handled as the full frame handles
+   it (tracker.detect.edge): fitted on the stamp's pixels inside the frame,
+   its moments judged along the edge (``judge_whole``) before the shape
+   tests, flagged EDGE when its stamp reaches beyond the frame
+   (``cut_axes``), and dropped when its centre lies beyond the frame
+   (``beyond_frame``, counted ``beyond_edge``). A star seen in two
+   overlapping windows is reported once.
 
 Not done here, unlike the full frame: deblending by the profile's dip, the
 roughness and sky-sector tests, EXTENDED (no frame-wide reference in a few
@@ -55,10 +74,10 @@ windows) and the PSF's measurement (the pipeline measures it with the full
 detector over a mosaic of the windows on one frame in
 ``identify.track_lens_every``: tracker.detect.windows).
 
-Fixed memory: the stack, its filtered copy and the star table are made at
-construction for ``cells`` windows of ``cell`` px, the order of ``max_candidates``
-peaks (which comes before which) once; the per-peak arrays are temporaries of at most
-``max_candidates`` rows.
+Fixed memory: the stack, its filtered copy (with the widest PSF's gaps) and
+the star table are made at construction for ``cells`` windows of ``cell`` px,
+the order of ``max_candidates`` peaks (which comes before which) once; the
+per-peak arrays are temporaries of at most ``max_candidates`` rows.
 """
 
 from __future__ import annotations
@@ -70,6 +89,7 @@ import numpy as np
 
 from tracker.config import DetectConfig
 from tracker.detect.background import QUANTISATION_NOISE_ADU
+from tracker.detect.edge import beyond_frame, cut_axes, inside_norms, judge_whole
 from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.impulse import psf_contrast, psf_ring
 from tracker.detect.layout import window_view
@@ -91,17 +111,26 @@ _TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
 _TRACK_ELLIPTICITY = 0.3       # ... this elongated is a particle's track
 _FIT_STEPS = 2                 # Gauss-Newton steps of the fit from the parabolic vertex:
                                # within 0.003 px RMS of converged (0.02 px at most)
+_EDGE_FIT_STEPS = 4            # ... of a star the frame's edge cuts: its flux and centre across
+                               # the edge trade off, and the steps converge slower
 _BLEND_STEPS = 2               # windowed-centroid steps of a blended star from the vertex: its
                                # error against the truth is its neighbour's pull, not the steps
                                # (RMS 0.249 px with 2, 0.255 with up to 8 over 120 blends)
 _MAX_SHIFT_PX = 1.5            # the fit's centre stays this close to the peak pixel
 _SAME_STAR_PX = 1.0            # one star's detections in overlapping windows lie closer
 _NEIGHBOURS = np.ones((3, 3), np.uint8)
+_MAX_SIGMA_PX = 3.5            # the widest optical PSF sigma the buffers are sized for, px
 
 
 def _effective_sigma(sigma_px: float) -> float:
     """The pixel-integrated PSF's sigma, px (tracker.detect.default.effective_sigma)."""
     return math.sqrt(sigma_px ** 2 + 1.0 / 12.0)
+
+
+def _kernel_half(sigma: float) -> int:
+    """The matched filter's half-width, px: round(2 sigma) of the pixel-integrated PSF's
+    ``sigma`` (the full frame's)."""
+    return max(1, int(round(2.0 * sigma)))
 
 
 class StampDetector:
@@ -126,10 +155,12 @@ class StampDetector:
         self.max_candidates = int(max_candidates)
         n, c = self.cells, self.cell
         self.raw = np.zeros((n, c, c), dtype)
-        # the filter's arrays hold the windows side by side, (row, window, column)
-        self.stack = np.zeros((c, n, c), np.float32)
-        self.filt = np.zeros((c, n * c), np.float32)
-        self.dilated = np.zeros((c, n * c), np.float32)
+        # the filter's arrays hold the windows side by side with their gaps, (row, window,
+        # column); :meth:`_configure` views them for its PSF's gap
+        widest = c * n * (c + _kernel_half(_effective_sigma(_MAX_SIGMA_PX)) + 1)
+        self._stack_buffer = np.zeros(widest, np.float32)
+        self._filt_buffer = np.zeros(widest, np.float32)
+        self._dilated_buffer = np.zeros(widest, np.float32)
         self.above = np.zeros((c, n, c), np.bool_)
         self.peak = np.zeros((c, n, c), np.bool_)
         ring = np.zeros((c, c), bool)
@@ -140,13 +171,11 @@ class StampDetector:
         self.level = np.zeros(n, np.float32)
         self.noise = np.zeros(n, np.float32)
         self.earlier = np.tri(self.max_candidates, k=-1, dtype=bool)   # [i, j]: j before i
-        self.cross = np.array([0, -1, 1, -n * c, n * c])   # a pixel and its 4 neighbours in
-                                                           # filt, flat offsets
         self.table = StarTable(cfg.max_stars)
         self.timer = StageTimer()
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
-                         "sharp_spots": 0, "candidates": 0, "left_out": 0}
-        max_radius = int(math.ceil(3.0 * _effective_sigma(3.5)))
+                         "sharp_spots": 0, "beyond_edge": 0, "candidates": 0, "left_out": 0}
+        max_radius = int(math.ceil(3.0 * _effective_sigma(_MAX_SIGMA_PX)))
         self.fit = PixelGaussianFit(self.max_candidates, 2 * max_radius + 1, _FIT_STEPS)
         self._step = None
 
@@ -160,10 +189,24 @@ class StampDetector:
         sigma_px = math.exp(step * _SIGMA_STEP)
         sigma = _effective_sigma(sigma_px)
         self.sigma, self.expected_size = sigma, sigma ** 2
-        half = max(1, int(round(2.0 * sigma)))
+        half = _kernel_half(sigma)
         kernel = cv2.getGaussianKernel(2 * half + 1, sigma, cv2.CV_64F).ravel()
+        n, c = self.cells, self.cell
+        width = c + half + 1                  # a window and its gap
+        size = c * n * width
+        self.stack = self._stack_buffer[:size].reshape(c, n, width)
+        self.stack.fill(0.0)                  # the gaps stay zero; windows are written anew
+        self.filt = self._filt_buffer[:size].reshape(c, n * width)
+        self.dilated = self._dilated_buffer[:size].reshape(c, n * width)
+        self.cross = np.array([0, -1, 1, -n * width, n * width])   # a pixel and its 4
+                                                                  # neighbours, flat offsets
         self.kernel = kernel.astype(np.float32)
         self.filter_gain = float(np.sum(kernel ** 2))     # filtered / pixel noise
+        # at the frame's edge the filter reads no light beyond it: its response over the
+        # noise gain of its taps inside, per axis, from the border pixel inward
+        self.half = half
+        self.edge_gain = (inside_norms(kernel, np.arange(half))
+                          / math.sqrt(self.filter_gain)).astype(np.float32)
         # the full frame's threshold: the windows report the stars it would
         area = self.frame_shape[0] * self.frame_shape[1]
         self.k_sigma = gaussian_peak_threshold(self.cfg.false_alarms_per_frame, area, kernel)
@@ -196,17 +239,20 @@ class StampDetector:
         timer.start("background")
         self._background()
         timer.start("filter")
-        np.subtract(self.raw.transpose(1, 0, 2), self.level[None, :, None], out=self.stack,
-                    casting="unsafe")
+        c = self.cell
+        np.subtract(self.raw.transpose(1, 0, 2), self.level[None, :, None],
+                    out=self.stack[:, :, :c], casting="unsafe")
         cv2.sepFilter2D(self.stack.reshape(self.filt.shape), cv2.CV_32F, self.kernel,
-                        self.kernel, dst=self.filt, borderType=cv2.BORDER_REFLECT)
+                        self.kernel, dst=self.filt, borderType=cv2.BORDER_CONSTANT)
+        self._at_frame_edges(origins)
         timer.start("peaks")
         win, py, px = self._peaks(origins)
         timer.start("impulses")
-        stamps, keep = self._stamps(image, origins, win, py, px)
+        stamps, inside, keep = self._stamps(image, origins, win, py, px)
         win, py, px, stamps = win[keep], py[keep], px[keep], stamps[keep]
+        inside = None if inside is None else inside[keep]
         timer.start("centroid")
-        count = self._measure(origins, win, py, px, stamps)
+        count = self._measure(origins, win, py, px, stamps, inside)
         timer.stop()
         return self.table.result(count, None, self.counters, timer.ms, psf)
 
@@ -234,12 +280,31 @@ class StampDetector:
         np.sqrt(var, out=self.noise)
         np.maximum(self.noise, QUANTISATION_NOISE_ADU, out=self.noise)
 
+    def _at_frame_edges(self, origins: np.ndarray) -> None:
+        """The filtered windows' pixels within the filter's half-width of a border that is
+        the frame's edge over the noise gain of the taps inside the frame (module
+        docstring, step 3), in place."""
+        h, w = self.frame_shape
+        c, half, gain = self.cell, self.half, self.edge_gain
+        low, high = origins == 0, origins == (w - c, h - c)
+        if not (low.any() or high.any()):
+            return
+        filt = self.filt.reshape(c, self.cells, -1)
+        for at, rows, cols, by in ((low[:, 1], slice(0, half), slice(0, c), gain[:, None, None]),
+                                   (high[:, 1], slice(c - half, c), slice(0, c),
+                                    gain[::-1, None, None]),
+                                   (low[:, 0], slice(None), slice(0, half), gain),
+                                   (high[:, 0], slice(None), slice(c - half, c), gain[::-1])):
+            which = np.flatnonzero(at)
+            if len(which):
+                filt[rows, which, cols] /= by
+
     def _peaks(self, origins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(window, row, column) of the local maxima above threshold, most significant first."""
         n, c = self.cells, self.cell
         cv2.dilate(self.filt, _NEIGHBOURS, dst=self.dilated)
-        filt = self.filt.reshape(c, n, c)
-        np.greater_equal(filt, self.dilated.reshape(c, n, c), out=self.peak)
+        filt = self.filt.reshape(c, n, -1)[:, :, :c]
+        np.greater_equal(filt, self.dilated.reshape(c, n, -1)[:, :, :c], out=self.peak)
         limit = (self.k_sigma * self.filter_gain) * self.noise
         np.greater(filt, limit[None, :, None], out=self.above)
         np.logical_and(self.peak, self.above, out=self.peak)
@@ -247,13 +312,14 @@ class StampDetector:
         py, rest = np.divmod(hits, n * c)
         win, px = np.divmod(rest, c)
         # the rows and columns a peak may take in its window: ``margin`` from an inner
-        # border, a stamp's reach (its radius and the median's ring) from the frame's edge
-        reach = self.radius + 1
+        # border, up to a border that is the frame's edge
+        h, w = self.frame_shape
         ox, oy = origins[win, 0], origins[win, 1]
-        inside = ((py >= np.maximum(self.margin, reach - oy))
-                  & (py <= np.minimum(c - 1 - self.margin, self.frame_shape[0] - 1 - reach - oy))
-                  & (px >= np.maximum(self.margin, reach - ox))
-                  & (px <= np.minimum(c - 1 - self.margin, self.frame_shape[1] - 1 - reach - ox)))
+        inner = c - 1 - self.margin
+        inside = ((py >= np.where(oy == 0, 0, self.margin))
+                  & (py <= np.where(oy == h - c, c - 1, inner))
+                  & (px >= np.where(ox == 0, 0, self.margin))
+                  & (px <= np.where(ox == w - c, c - 1, inner)))
         win, py, px = win[inside], py[inside], px[inside]
         significance = filt[py, win, px] / self.noise[win]
         # most significant first; equal ones by window, row, column
@@ -272,18 +338,35 @@ class StampDetector:
         return win[first], py[first], px[first]
 
     def _stamps(self, image: np.ndarray, origins: np.ndarray, win: np.ndarray, py: np.ndarray,
-                px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                px: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
         """Each peak's stamp (m, side^2) of frame pixels, impulses replaced by their 3 x 3
-        median, and the mask of peaks kept (module docstring, step 5)."""
+        median and the pixels beyond the frame by the window's level; the mask (m, side^2)
+        of the pixels inside the frame (None: all are); and the mask of peaks kept (module
+        docstring, step 5)."""
         m = len(win)
         side = 2 * self.radius + 1
         big = side + 2
         corner = self.radius + 1
-        wide = window_view(image, big)[origins[win, 1] + py - corner,
-                                        origins[win, 0] + px - corner].astype(np.float32)
         keep = np.ones(m, bool)
         if m == 0:
-            return np.zeros((0, side * side)), keep
+            return np.zeros((0, side * side)), None, keep
+        h, w = self.frame_shape
+        top = origins[win, 1] + py - corner
+        left = origins[win, 0] + px - corner
+        cut = (top < 0) | (left < 0) | (top > h - big) | (left > w - big)
+        wide = window_view(image, big)[np.clip(top, 0, h - big),
+                                        np.clip(left, 0, w - big)].astype(np.float32)
+        inside = None
+        if cut.any():
+            # the frame's border pixels repeated beyond it (read only by the median)
+            rows = top[cut, None] + np.arange(big)
+            cols = left[cut, None] + np.arange(big)
+            wide[cut] = image[np.clip(rows, 0, h - 1)[:, :, None],
+                              np.clip(cols, 0, w - 1)[:, None, :]]
+            in_rows = (rows[:, 1:-1] >= 0) & (rows[:, 1:-1] < h)
+            in_cols = (cols[:, 1:-1] >= 0) & (cols[:, 1:-1] < w)
+            inside = np.ones((m, side * side), bool)
+            inside[cut] = (in_rows[:, :, None] & in_cols[:, None, :]).reshape(-1, side * side)
         # the median of each stamp's own pixels: the outer ring (only read by the median)
         # keeps the stamps apart in the image OpenCV filters, the stamps side by side (its
         # float median runs along rows: a tall image of stamp-wide rows costs 15 times more)
@@ -297,6 +380,9 @@ class StampDetector:
         rise = np.abs(stamps - median)
         spike = (rise > self.cfg.impulse_sigma * noise) & (
             rise > self.contrast * (np.maximum(stamps, median) - level))
+        if inside is not None:
+            spike &= inside
+            np.copyto(stamps, np.broadcast_to(level, stamps.shape), where=~inside)  # no light
         # a candidate whose brightest central pixel is an impulse with no star's light
         # around it is a hot pixel or a one-pixel hit
         rows = np.arange(m)
@@ -309,11 +395,12 @@ class StampDetector:
         self.counters["hot_pixels"] = int(np.count_nonzero(alone))
         self.counters["impulse_pixels"] = int(np.count_nonzero(spike))
         np.copyto(stamps, median, where=spike)
-        return stamps, keep
+        return stamps, inside, keep
 
     def _measure(self, origins: np.ndarray, win: np.ndarray, py: np.ndarray, px: np.ndarray,
-                 raw: np.ndarray) -> int:
-        """Centroid, photometry, shape tests and flags (module docstring, step 6); the
+                 raw: np.ndarray, inside: np.ndarray | None) -> int:
+        """Centroid, photometry, shape tests and flags (module docstring, step 6) of the
+        stamps ``raw`` (m, side^2), ``inside`` their pixels in the frame (None: all); the
         stars kept go to the table, most significant first. Returns their count."""
         m = len(win)
         if m == 0:
@@ -326,19 +413,18 @@ class StampDetector:
         # peaks closer than the blend radius (the full frame's): a single star's model
         # fitted to a stamp holding two is pulled between them, while a Gaussian weight
         # keeps most of the neighbour out
-        at_x = (origins[win, 0] + px).astype(np.float64)
-        at_y = (origins[win, 1] + py).astype(np.float64)
+        col, row = origins[win, 0] + px, origins[win, 1] + py
+        at_x, at_y = col.astype(np.float64), row.astype(np.float64)
         blend = 2.0 * r if self.cfg.blend_radius_px is None else float(self.cfg.blend_radius_px)
         # whole pixels: exact in any order
         close = np.square(at_x[:, None] - at_x[None, :])
         close += np.square(at_y[:, None] - at_y[None, :])
         blended = (close <= blend * blend).sum(axis=1) > 1   # itself and another
-        fit = (~blended).nonzero()[0]
-        if len(fit):
-            fx, fy = x[fit], y[fit]
-            self.fit.run(len(fit), signal[fit], raw[fit], fx, fy, noise[fit], self.saturation,
-                         _MAX_SHIFT_PX)
-            x[fit], y[fit] = fx, fy
+        whole = ~blended if inside is None else ~blended & inside.all(axis=1)
+        self._fit(whole.nonzero()[0], _FIT_STEPS, signal, raw, noise, None, x, y)
+        if inside is not None:
+            cut = (~blended & ~whole).nonzero()[0]
+            self._fit(cut, _EDGE_FIT_STEPS, signal, raw, noise, inside, x, y)
         pair = blended.nonzero()[0]
         if len(pair):
             x[pair], y[pair] = self._windowed(signal[pair].reshape(-1, side, side), x[pair],
@@ -361,6 +447,9 @@ class StampDetector:
         mxy = (along[:, 1] * gx * e[0]).sum(axis=1) / total
         size = mxx + myy
         ellipticity = np.hypot(mxx - myy, 2.0 * mxy) / np.maximum(size, 1e-12)
+        across_x, across_y = cut_axes(row, col, self.frame_shape, r)
+        judge_whole({"mxx": mxx, "myy": myy, "mxy": mxy, "size": size,
+                     "ellipticity": ellipticity}, across_x, across_y)
         width = 0.5 * size * (1.0 - ellipticity) / (0.5 * self.expected_size)
         judged = snr >= self.cfg.sharp_min_snr
         spot = (weighted > 0) & (size > 0) & (ellipticity <= 1.0)
@@ -369,7 +458,10 @@ class StampDetector:
         self.counters["sharp_spots"] = int(np.count_nonzero(sharp))
         self.counters["cosmic_rays"] = self.counters["sharp_spots"]
         fx, fy = at_x + x, at_y + y
-        keep = (~sharp).nonzero()[0]
+        # a star centred beyond the frame shows less than half its light: no centre
+        off = beyond_frame(fx, fy, self.frame_shape)
+        self.counters["beyond_edge"] = int(np.count_nonzero(off))
+        keep = (~(sharp | off)).nonzero()[0]
         keep = keep[np.argsort(-snr[keep], kind="stable")]
         # one star's detections in two windows: the later within _SAME_STAR_PX of an
         # earlier one left out (the pairs of a frame's few dozen stars in one comparison)
@@ -393,8 +485,23 @@ class StampDetector:
             StarFlag.SATURATED
         flags[(ellipticity[keep] > self.cfg.elongation_max) & judged[keep]] |= StarFlag.ELONGATED
         flags[blended[keep]] |= StarFlag.BLENDED
+        flags[(across_x | across_y)[keep]] |= StarFlag.EDGE
         s["flags"][:count] = flags
         return count
+
+    def _fit(self, which: np.ndarray, steps: int, signal: np.ndarray, raw: np.ndarray,
+             noise: np.ndarray, inside: np.ndarray | None, x: np.ndarray,
+             y: np.ndarray) -> None:
+        """The PSF's fit (``steps`` Gauss-Newton steps) to the stamps ``which`` of
+        ``signal`` and ``raw`` (m, side^2), on their pixels ``inside`` the frame (None:
+        all); their centres ``x``, ``y`` (m,), px from the peak pixels, refined in place."""
+        if len(which) == 0:
+            return
+        fx, fy = x[which], y[which]
+        self.fit.iterations = steps
+        self.fit.run(len(which), signal[which], raw[which], fx, fy, noise[which],
+                     self.saturation, _MAX_SHIFT_PX, None if inside is None else inside[which])
+        x[which], y[which] = fx, fy
 
     def _windowed(self, grid: np.ndarray, x: np.ndarray,
                   y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -426,14 +533,17 @@ class StampDetector:
 
     def _vertex(self, win: np.ndarray, py: np.ndarray,
                 px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The filtered peak's parabolic vertex per axis, px from the peak pixel (|.| <= 0.5):
-        the peak and its four neighbours read in one gather, both axes at once."""
-        at = (py * self.cells + win) * self.cell + px
-        near = self.filt.ravel()[at[:, None] + self.cross].astype(np.float64)  # (m, 5)
+        """The filtered peak's parabolic vertex per axis, px from the peak pixel (|.| <= 0.5;
+        0 across a window's top or bottom row, where the filter has no neighbour): the peak
+        and its four neighbours read in one gather, both axes at once."""
+        at = (py * self.cells + win) * (self.filt.shape[1] // self.cells) + px
+        near = self.filt.ravel().take(at[:, None] + self.cross,
+                                      mode="clip").astype(np.float64)  # (m, 5)
         lo, hi = near[:, 1::2], near[:, 2::2]        # (left, up), (right, down)
         curve = lo - 2.0 * near[:, :1] + hi
         bent = curve < 0
         offset = np.where(bent, 0.5 * (lo - hi) / np.where(bent, curve, -1.0), 0.0)
         np.maximum(offset, -0.5, out=offset)
         np.minimum(offset, 0.5, out=offset)
+        offset[(py == 0) | (py == self.cell - 1), 1] = 0.0
         return offset[:, 0], offset[:, 1]
