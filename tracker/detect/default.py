@@ -77,7 +77,10 @@ handled, sigma 3.5 px):
    pixels censored where light, not the sky's noise, clipped them; where the
    sky's noise clips at full scale, saturated stars centred on the peak of
    the widened filter; tracker.detect.fit), flux, SNR and shape
-   (tracker.detect.windowed). Spots much narrower than the PSF, or rougher
+   (tracker.detect.windowed); the flux reported is the PSF-weighted sum's
+   (tracker.detect.weighted_flux: the noise and background error of the
+   PSF's effective area, not of the whole window), a saturated star's its
+   window's sum. Spots much narrower than the PSF, or rougher
    at the pixel scale than a star of their flux (cosmic-ray clusters that
    survived steps 3-4; tracker.detect.roughness), are rejected and counted
    (fainter ones when narrower than a star beyond their noise); so are
@@ -164,6 +167,7 @@ from tracker.detect.threshold import (
     gaussian_peak_threshold,
     skewed_threshold,
 )
+from tracker.detect.weighted_flux import weighted_capture
 from tracker.detect.windowed import WindowedCentroider
 from tracker.timing import StageTimer
 
@@ -470,6 +474,7 @@ class DefaultDetector:
         kernel = self._gaussian_kernel(sigma_px)
         self.peaks.configure(blend)
         self.centroider.configure(self.radius, sigma)
+        self.capture = weighted_capture(sigma_px, sigma, self.radius)
         self.fit.configure(self.radius, sigma_px)
         if self.cfg.centroid_noise == "multiplicative":
             self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
@@ -1337,7 +1342,9 @@ class DefaultDetector:
         s = self.table.stars
         s["x"][:count] = cols + v["x0"][keep]
         s["y"][:count] = rows + v["y0"][keep]
-        s["flux"][:count] = v["flux"][keep]
+        # the PSF-weighted flux (tracker.detect.weighted_flux); a saturated star's plain sum
+        s["flux"][:count] = np.where(saturated[keep], v["flux"][keep],
+                                     v["weighted"][keep] / self.capture)
         s["peak"][:count] = v["peak"][keep]
         s["snr"][:count] = v["snr"][keep]
         s["npix"][:count] = v["npix"][keep]

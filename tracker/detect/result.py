@@ -20,7 +20,7 @@ __all__ = ["STAR_DTYPE", "StarFlag", "Detections"]
 STAR_DTYPE = np.dtype([
     ("x", np.float64),      # column, px
     ("y", np.float64),      # row, px
-    ("flux", np.float64),   # background-subtracted sum, ADU
+    ("flux", np.float64),   # background-subtracted flux, ADU (default: PSF-weighted)
     ("peak", np.float64),   # highest background-subtracted pixel, ADU
     ("snr", np.float64),    # flux / its noise (background and shot noise)
     ("npix", np.int32),     # pixels in the segment
