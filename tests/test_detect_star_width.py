@@ -4,21 +4,13 @@ not convolved with the optics, is rejected under a sharp PSF; no star is."""
 from __future__ import annotations
 
 import numpy as np
+from spot_grid import SHAPE, SKY_E, found, grid_centres, sensor_frame, spot
 
 from tracker.config import DetectConfig
 from tracker.detect import make_detector
 from tracker.detect.star_width import lowest_phase_width, sharper_than_stars
-from tracker.normal import pixel_fractions
 
 _DIFFUSION_PX = 0.45   # a particle's charge cloud, px (tracker.sim.scene.particle_tracks)
-
-
-def _spot(flux: float, sigma_px: float, radius: int, phase: tuple[float, float]) -> np.ndarray:
-    """A pixel-integrated Gaussian of ``flux`` in a (2r+1)^2 box, centred ``phase`` px off."""
-    edges = np.arange(-radius, radius + 2, dtype=np.float64) - 0.5
-    fx, _ = pixel_fractions(edges - phase[0], sigma_px)
-    fy, _ = pixel_fractions(edges - phase[1], sigma_px)
-    return flux * np.outer(fy, fx)
 
 
 def _stars_and_hits(seed: int, sigma_px: float):
@@ -27,26 +19,21 @@ def _stars_and_hits(seed: int, sigma_px: float):
     particle hits (a near-normal incidence: 250-1000 e- diffused by 0.45 px), on a sky of
     60 e- at 1.35 e-/ADU with 2 ADU of read noise."""
     rng = np.random.default_rng(seed)
-    shape = (512, 512)
-    det = make_detector(DetectConfig(max_stars=1024), shape, 10)
+    det = make_detector(DetectConfig(max_stars=1024), SHAPE, 10)
     kept = np.zeros(2, int)
     total = np.zeros(2, int)
     for _ in range(2):
-        light = np.full(shape, 60.0)
-        gy, gx = np.meshgrid(np.arange(24, 490, 32), np.arange(24, 490, 32), indexing="ij")
-        xs = gx.ravel() + rng.uniform(-0.5, 0.5, gx.size)
-        ys = gy.ravel() + rng.uniform(-0.5, 0.5, gy.size)
+        light = np.full(SHAPE, SKY_E)
+        gx, gy = grid_centres()
+        xs = gx + rng.uniform(-0.5, 0.5, gx.size)
+        ys = gy + rng.uniform(-0.5, 0.5, gy.size)
         star = rng.random(xs.size) >= 0.25
         for x, y, is_star in zip(xs, ys, star, strict=True):
             r0, c0 = int(round(y)), int(round(x))
             flux = rng.uniform(250.0, 3000.0) if is_star else rng.uniform(250.0, 1000.0)
-            light[r0 - 9:r0 + 10, c0 - 9:c0 + 10] += _spot(
+            light[r0 - 9:r0 + 10, c0 - 9:c0 + 10] += spot(
                 flux, sigma_px if is_star else _DIFFUSION_PX, 9, (x - c0, y - r0))
-        image = rng.poisson(light) / 1.35 + rng.normal(0.0, 2.0, shape)
-        stars = det.detect(np.clip(np.rint(image), 0, 1023).astype(np.uint16)).stars
-        d = np.hypot(xs[:, None] - stars["x"][None], ys[:, None] - stars["y"][None])
-        found = d.min(axis=1) < 2.0
-        kept += (int(np.count_nonzero(found & star)), int(np.count_nonzero(found & ~star)))
+        kept += found(det.detect(sensor_frame(light, rng)).stars, xs, ys, star)
         total += (int(np.count_nonzero(star)), int(np.count_nonzero(~star)))
     return kept[0], total[0], kept[1], total[1]
 

@@ -83,7 +83,10 @@ handled, sigma 3.5 px):
    window's sum. Spots much narrower than the PSF, or rougher
    at the pixel scale than a star of their flux (cosmic-ray clusters that
    survived steps 3-4; tracker.detect.roughness), are rejected and counted
-   (fainter ones when narrower than a star beyond their noise); so are
+   (fainter ones when narrower than a star beyond their noise, or, against
+   a PSF the frame's stars measured, when their 3 x 3 holds a point, a hot
+   pixel's or a particle's charge, beyond a star's noise:
+   tracker.detect.point_spot); so are
    saturated spots holding less light than the PSF's area times their
    clipped peak (judged at any SNR: on glare a track's SNR is low, its
    shape still plain). Maxima on a bright body are masked
@@ -142,6 +145,7 @@ from tracker.detect.layout import PaddedLayout
 from tracker.detect.multiplicative import MultiplicativeFit
 from tracker.detect.order import median
 from tracker.detect.peaks import PeakFinder
+from tracker.detect.point_spot import POINT_OFFSETS, Z_STAR_LOSS, point_significance
 from tracker.detect.psf import (
     CHARGE_SIGMA_PX,
     OPTICS_WIDER,
@@ -1317,6 +1321,9 @@ class DefaultDetector:
             sharp |= spot & (width < self.cfg.sharp_size_ratio) & (
                 (1.0 - width) * known > math.sqrt(2.0) * (
                     _MEASURED_WIDTH_SPREADS if self.psf.stars else _WIDTH_SPREADS))
+            # fainter than the shape tests judge: a hot pixel or a particle's charge the
+            # impulse stage spared is a point on its 3 x 3, beyond a star's noise
+            sharp |= self._point_like(cand, v, noise, level, ~(judged | saturated | sharp))
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
@@ -1359,6 +1366,38 @@ class DefaultDetector:
         flags[broad[keep]] |= StarFlag.EXTENDED
         s["flags"][:count] = flags
         return count
+
+    def _point_like(self, cand: np.ndarray, v: dict, noise: np.ndarray, level: np.ndarray,
+                    which: np.ndarray) -> np.ndarray:
+        """Those of the spots ``which`` whose 3 x 3 holds a point (a hot pixel, a particle's
+        charge) beyond a star's noise (tracker.detect.point_spot): (n,) bool.
+
+        Made only against a PSF this frame's stars measured (one carried from
+        elsewhere may be wider than its stars), at least ``CHARGE_SIGMA_PX`` wide (a
+        sharper star is as sharp as a particle's charge), and only on spots fainter
+        than ``sharp_min_snr`` (brighter, a PSF that is no Gaussian, a Moffat's core,
+        reads as a point component growing with the flux, and the shape tests judge
+        them). ``_CHUNK`` spots at a time.
+        """
+        out = np.zeros(len(cand), bool)
+        sigma_px = self.psf.sigma_px
+        if not self.psf.stars or sigma_px < CHARGE_SIGMA_PX:
+            return out
+        spots = np.flatnonzero(which)
+        padded, bg = self.input.padded.ravel(), self.bg_pad.ravel()
+        offsets = (POINT_OFFSETS[:, 0] * self.layout.stride + POINT_OFFSETS[:, 1])[None, :]
+        for start in range(0, len(spots), _CHUNK):
+            part = spots[start:start + _CHUNK]
+            ox, oy = np.rint(v["x0"][part]), np.rint(v["y0"][part])
+            at = (cand[part] + oy.astype(np.intp) * self.layout.stride
+                  + ox.astype(np.intp))[:, None] + offsets
+            light = np.take(padded, at, mode="clip").astype(np.float64)
+            light -= np.take(bg, at, mode="clip")
+            light -= level[part, None]
+            z = point_significance(light, v["x0"][part] - ox, v["y0"][part] - oy,
+                                   noise[part], sigma_px)
+            out[part] = z > Z_STAR_LOSS
+        return out
 
     def _star_width(self, v: dict, star_like: np.ndarray, saturated: np.ndarray) -> float:
         """The width of the frame's stars (tracker.detect.star_width's convention): the
