@@ -556,7 +556,7 @@ class DefaultDetector:
         for key in self.counters:
             self.counters[key] = 0
         timer.start("input")
-        reason = self.input.load(image)
+        reason = self.input.load(image, rows=self.impulses.slabs.rows)
         if reason is not None:
             timer.stop()
             return self.table.result(0, reason, self.counters, timer.ms)

@@ -123,6 +123,7 @@ _REFINE_PASSES = 2
 _GROW_STEPS = 2        # rounds of adding the neighbours of replaced pixels
 _GROW_LIMIT = 0.5      # ... tested against this fraction of the first pass's limit
 _TRACK_REMNANT = 0.2   # a track pixel whose replacement keeps under this of its height: sky
+_CUT_ROWS = 32         # rows of the first cut's difference made and compared at a time
 
 
 class ImpulseFilter:
@@ -142,9 +143,13 @@ class ImpulseFilter:
         self.near_top = np.zeros(layout.full_shape, np.uint8)
         self.capacity = int(capacity)
         self.median_pad, self.median = layout.buffer(dtype)
-        self.diff_pad, self.diff = layout.buffer(dtype)
         self.mask_pad, self.mask = layout.buffer(np.uint8)
         self.slabs = SlabRunner(layout.rows, layout.cols, 1, threads, dtype)
+        # |work - median| of _CUT_ROWS rows at a time, one scratch per slab (by its first
+        # row): it stays in the core's cache between its making and its comparison
+        self.cut_scratch = {a: np.zeros((_CUT_ROWS, layout.cols), dtype)
+                            for a, _ in self.slabs.slabs}
+        self.cut_words = layout.word_marks()   # the mask's words holding a candidate
         self.dense = _TestBuffers(layout.full_shape)
         self.sparse = _TestBuffers((self.capacity,))
         self.index = np.zeros(self.capacity, np.intp)
@@ -220,7 +225,7 @@ class ImpulseFilter:
             self._median_wait()
             self._median_wait = None
         self.slabs.rows(lambda a, b: self._first_cut(work[a:b], limit[a:b], a, b))
-        n = self.layout.nonzero(self.mask_pad, self.index)
+        n = self.layout.nonzero(self.mask_pad, self.index, marks=self.cut_words)
         if n == 0:
             return counts
         if n > self.capacity:
@@ -621,9 +626,20 @@ class ImpulseFilter:
         return n + k
 
     def _first_cut(self, work: np.ndarray, limit: np.ndarray, a: int, b: int) -> None:
-        """mask = |work - median| > limit on rows [a, b) of the frame."""
-        cv2.absdiff(work, self.median[a:b], dst=self.diff[a:b])
-        cv2.compare(self.diff[a:b], limit, cv2.CMP_GT, dst=self.mask[a:b])
+        """mask = |work - median| > limit on rows [a, b) of the frame (``work`` and
+        ``limit`` are those rows), ``_CUT_ROWS`` rows at a time: the difference is
+        compared, and the mask's words holding a candidate marked (``cut_words``),
+        while still in cache (a third less time than through full-frame buffers, each
+        pass reading or writing memory)."""
+        scratch = self.cut_scratch[a]
+        pad = self.layout.pad
+        for top in range(0, b - a, _CUT_ROWS):
+            end = min(top + _CUT_ROWS, b - a)
+            diff = scratch[:end - top]
+            cv2.absdiff(work[top:end], self.median[a + top:a + end], dst=diff)
+            cv2.compare(diff, limit[top:end], cv2.CMP_GT, dst=self.mask[a + top:a + end])
+            self.layout.mark_words(self.mask_pad, pad + a + top, pad + a + end,
+                                   self.cut_words)
 
     def _sparse(self, n: int, work_pad: np.ndarray, bg_pad: np.ndarray,
                 limit_pad: np.ndarray) -> None:
