@@ -105,10 +105,11 @@ The Gaussian of step 5 and the threshold tests of steps 4 and 6 run in
 ``detect.threads`` horizontal slabs at once (tracker.detect.slabs; the
 result does not depend on the thread count). With more than one thread
 full-frame passes also run on worker threads beside Python work that does
-not need them: the median of step 3 while step 2 works out the background
-and the impulse limit (the median needs only the frame), the background's
-interpolation to full size on the other worker beside the impulse limit's;
-and the float copy of step 5, with the background read at the filtered
+not need them: the frame's copy of step 1 in two slabs; the median of step 3
+while step 2 works out the background and the impulse limit (the median
+needs only the frame), the background's interpolation to full size on the
+other worker beside the impulse limit's and step 3's first cut (the pixels
+far from their median, which needs no background); and the float copy of step 5, with the background read at the filtered
 statistics' samples, while step 4 measures the PSF (the impulses' second
 pass then rewrites the pixels it changes in both copies).
 
@@ -581,11 +582,13 @@ class DefaultDetector:
         np.rint(self.float_grid, out=self.float_grid)
         np.copyto(self.int_grid, self.float_grid, casting="unsafe")
         grid.upsample(self.int_grid, self.impulse_limit)
+        timer.start("impulses")
+        self.impulses.cut(self.input.work, self.impulse_limit)   # needs no background
+        timer.start("background")
         bg_wait()
         grid.cap_in_tiles(self.level, self.bg, self.beside_body)
         timer.start("impulses")
-        self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
-                                               self.limit_pad, self.impulse_limit))
+        self.counters.update(self.impulses.test(self.input.padded, self.bg_pad, self.limit_pad))
         # the filter's float copy and the background at the filtered statistics' samples,
         # beside the PSF's measurement; the second impulse pass then rewrites the pixels
         # it changes in both copies

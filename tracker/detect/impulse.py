@@ -199,11 +199,12 @@ class ImpulseFilter:
         self.any_after = np.zeros(self.capacity, np.uint8)
         self.counts = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0}
         self._median_wait = None
+        self._listed = 0   # the last cut's candidates
 
     def start_median(self, work: np.ndarray) -> None:
-        """Begin the 3x3 median of ``work`` (the frame :meth:`run` will be given, already
-        final) on a worker thread, for :meth:`run` to collect: the caller's other work
-        (the background's statistics) overlaps it. Same median as :meth:`run` makes."""
+        """Begin the 3x3 median of ``work`` (the frame :meth:`cut` will be given, already
+        final) on a worker thread, for :meth:`cut` to collect: the caller's other work
+        (the background's statistics) overlaps it. Same median as :meth:`cut` makes."""
         self._median_wait = self.slabs.start(_median3, work, self.median)
 
     def run(self, work_pad: np.ndarray, work: np.ndarray, bg_pad: np.ndarray,
@@ -212,20 +213,32 @@ class ImpulseFilter:
 
         ``limit_pad`` (padded like ``work_pad``; ``limit`` its interior view)
         is ``k_sigma`` times the local pixel noise; ``bg_pad`` (float32) the
-        background.
+        background. :meth:`cut`, then :meth:`test`.
         """
-        counts = self.counts
-        for key in counts:
-            counts[key] = 0
-        self._n = 0
-        self._dense = False
+        self.cut(work, limit)
+        return self.test(work_pad, bg_pad, limit_pad)
+
+    def cut(self, work: np.ndarray, limit: np.ndarray) -> None:
+        """List the candidates of :meth:`test`: the pixels of ``work`` (interior view)
+        differing from their 3x3 median by more than ``limit`` (its interior view).
+        Needs no background: a caller may make the background meanwhile."""
         if self._median_wait is None:
             self.slabs.run(_median3, work, self.median)
         else:
             self._median_wait()
             self._median_wait = None
         self.slabs.rows(lambda a, b: self._first_cut(work[a:b], limit[a:b], a, b))
-        n = self.layout.nonzero(self.mask_pad, self.index, marks=self.cut_words)
+        self._listed = self.layout.nonzero(self.mask_pad, self.index, marks=self.cut_words)
+
+    def test(self, work_pad: np.ndarray, bg_pad: np.ndarray, limit_pad: np.ndarray) -> dict:
+        """Replace the impulses among the last :meth:`cut`'s candidates; counts (arguments
+        as :meth:`run`'s)."""
+        counts = self.counts
+        for key in counts:
+            counts[key] = 0
+        self._n = 0
+        self._dense = False
+        n = self._listed
         if n == 0:
             return counts
         if n > self.capacity:
