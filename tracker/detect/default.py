@@ -109,9 +109,10 @@ not need them: the frame's copy of step 1 in two slabs; the median of step 3
 while step 2 works out the background and the impulse limit (the median
 needs only the frame), the background's interpolation to full size on the
 other worker beside the impulse limit's and step 3's first cut (the pixels
-far from their median, which needs no background); and the float copy of step 5, with the background read at the filtered
-statistics' samples, while step 4 measures the PSF (the impulses' second
-pass then rewrites the pixels it changes in both copies).
+far from their median, which needs no background); and the float copy of
+step 5, with the background read at the filtered statistics' samples, while
+step 4 measures the PSF (the impulses' second pass then rewrites the pixels
+it changes in both copies).
 
 ``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
 found in steps 3-4 plus sharp spots from step 7), sharp_spots, masked,
