@@ -115,9 +115,8 @@ def _median3(src: np.ndarray, dst: np.ndarray) -> None:
     cv2.medianBlur(src, 3, dst=dst)
 
 
-# Neighbour offsets (dy, dx): all eight, and the four met before a pixel in raster order.
+# Neighbour offsets (dy, dx): all eight, the four met before a pixel in raster order first.
 _EIGHT = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
-_BEFORE = 4
 _RING = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], np.uint8)   # a pixel's eight neighbours
 _REFINE_PASSES = 2
 _GROW_STEPS = 2        # rounds of adding the neighbours of replaced pixels
@@ -195,8 +194,13 @@ class ImpulseFilter:
                                    ((cols == 0) | (cols == layout.cols - 1)).astype(np.uint8))
         np.multiply(self.beyond, 3, out=self.beyond)
         self.beyond[self.beyond == 6] = 5
-        self.any_before = np.zeros(self.capacity, np.uint8)
-        self.any_after = np.zeros(self.capacity, np.uint8)
+        # a marked neighbour among the four before each pixel in raster order, among the
+        # four after it (and, once or'ed, among all eight), read as whole words of the
+        # neighbours' marks (_EIGHT's order puts those before first): a fifth of the time
+        # of a max over each row's bytes
+        self.neighbour_words = self.neighbours.view(np.uint32)     # (capacity, 2)
+        self.any_before = np.zeros(self.capacity, np.bool_)
+        self.any_after = np.zeros(self.capacity, np.bool_)
         self.counts = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0}
         self._median_wait = None
         self._listed = 0   # the last cut's candidates
@@ -361,8 +365,7 @@ class ImpulseFilter:
         if n == 0:
             return self.index[:0], self.values[0, :0]
         idx = self.index[:n]
-        touching = self._neighbour_marks(n, idx, self.charge[:n])
-        np.max(touching, axis=1, out=self.any_after[:n])
+        self._any_marked(n, idx, self.charge[:n])
         w, m, b, lim = (v[:n] for v in self.values)
         window = self.window_values[:n]
         np.add(idx[:, None], self.window_offsets[None, :], out=self.window_index[:n])
@@ -382,7 +385,7 @@ class ImpulseFilter:
         np.less(around, t1, out=lone)                   # its neighbours dark for a star
         np.logical_and(lone, w - m > lim, out=lone)
         np.logical_or(imp, lone, out=imp)
-        imp &= (w > m) & ~self.replaced[:n] & (self.any_after[:n] == 0)
+        imp &= (w > m) & ~self.replaced[:n] & ~self.any_after[:n]
         hit = np.compress(imp, idx)
         median_of = np.compress(imp, m)
         np.put(work_pad.ravel(), hit, median_of.astype(work_pad.dtype), mode="clip")
@@ -506,14 +509,26 @@ class ImpulseFilter:
         np.put(marks, idx, 0, mode="clip")
         return nb
 
+    def _any_marked(self, n: int, idx: np.ndarray,
+                    mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Whether any of each listed pixel's four neighbours before it in raster order is
+        marked, and (views of ``any_before`` and ``any_after``) any of all eight;
+        arguments as :meth:`_neighbour_marks`'."""
+        self._neighbour_marks(n, idx, mask)
+        words = self.neighbour_words[:n]
+        before, after = self.any_before[:n], self.any_after[:n]
+        np.not_equal(words[:, 0], 0, out=before)
+        np.not_equal(words[:, 1], 0, out=after)
+        np.logical_or(before, after, out=after)
+        return before, after
+
     def _track_pixels(self, n: int) -> np.ndarray:
         """Mask (a view of ``flags``) of the candidates replaced for added charge (above
         their median) with such a neighbour. A particle adds charge: a dark impulse
         beside a bright one (on a star's steep edge, where the 3x3 median is lifted
         on one side and lowered on the other) is no track."""
         replaced = self.charge[:n]
-        nb = self._neighbour_marks(n, self.index[:n], replaced)
-        np.max(nb, axis=1, out=self.any_after[:n])
+        self._any_marked(n, self.index[:n], replaced)
         track = self.flags[:n]
         np.logical_and(replaced, self.any_after[:n], out=track)
         return track
@@ -683,13 +698,9 @@ class ImpulseFilter:
         if not np.any(charge):
             return
         imp = charge
-        nb = self._neighbour_marks(n, idx, imp)
-        before, after = self.any_before[:n], self.any_after[:n]
-        np.max(nb[:, :_BEFORE], axis=1, out=before)
-        np.max(nb[:, _BEFORE:], axis=1, out=after)
+        before, after = self._any_marked(n, idx, imp)
         # isolated impulse: no impulse neighbour at all
-        np.bitwise_or(before, after, out=after)
-        hot = int(np.count_nonzero(imp & (after == 0)))
-        starts = int(np.count_nonzero(imp & (before == 0)))
+        hot = int(np.count_nonzero(imp & ~after))
+        starts = int(np.count_nonzero(imp & ~before))
         counts["hot_pixels"] = hot
         counts["cosmic_rays"] = starts - hot
