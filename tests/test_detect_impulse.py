@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
+import pytest
 
 from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
 from tracker.detect.layout import PaddedLayout
@@ -50,3 +52,30 @@ def test_a_hot_pixel_spared_for_a_sharp_psf_is_replaced_for_the_frames_and_its_s
     assert list(excess) == [50.0]
     assert frame[20, 20] == 110 and mirror[8 + 20, 8 + 20] == 110.0
     assert frame[50, 50] == BACKGROUND + 300
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_first_cut_lists_every_pixel_beyond_the_limit_from_its_median(threads):
+    """The first cut (made a few rows at a time, in slabs, with the mask's words marked
+    as it goes) lists exactly the pixels differing from their 3x3 median by more than
+    the limit, in raster order: a frame of 150 rows (no whole number of the cut's row
+    blocks, two slabs) with noise, hot and dead pixels and a limit varying across it."""
+    rng = np.random.default_rng(12)
+    shape = (150, 90)
+    layout = PaddedLayout(shape, 8)
+    pad, frame = layout.buffer(np.uint16)
+    frame[:] = rng.poisson(BACKGROUND, shape)
+    hits = rng.choice(frame.size, 300, replace=False)
+    frame.ravel()[hits[:200]] += 80
+    frame.ravel()[hits[200:]] = 0
+    limit_pad, limit = layout.buffer(np.uint16)
+    limit[:] = np.linspace(15, 60, shape[1]).astype(np.uint16)[None, :]
+    expected = np.abs(frame.astype(np.int32) - cv2.medianBlur(frame, 3)) > limit
+    rows, cols = np.nonzero(expected)
+    impulses = ImpulseFilter(layout, 0.5, 4096, np.uint16, threads)
+    assert impulses.slabs.threads == threads
+    for _ in range(2):                     # the second frame's cut starts from the first's
+        impulses.cut(frame, limit)
+        n = impulses._listed
+        assert n == len(rows) > 150
+        np.testing.assert_array_equal(impulses.index[:n], layout.flat_index(rows, cols))

@@ -8,6 +8,7 @@ import pytest
 from tracker.config import DetectConfig, SimConfig
 from tracker.detect import METHODS, make_detector
 from tracker.detect.frame_input import FrameInput
+from tracker.detect.slabs import SlabRunner
 from tracker.sim import render_points
 
 SHAPE = (48, 64)
@@ -97,10 +98,13 @@ def _through_float(image: np.ndarray, full_scale: float) -> np.ndarray:
     return np.rint(np.clip(image.astype(np.float64), 0.0, full_scale)).astype(np.uint16)
 
 
+@pytest.mark.parametrize("threads", [1, 2])
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
-def test_unsigned_frames_reach_the_work_as_the_float_route_makes_them(dtype):
+def test_unsigned_frames_reach_the_work_as_the_float_route_makes_them(dtype, threads):
     """The one-pass copy of uint8/uint16 frames (clipped at full scale) gives the work and
-    the reason the float route gives, including where the first row says nothing."""
+    the reason the float route gives, including where the first row says nothing, also
+    when the copy runs in two threads' slabs (tracker.detect.slabs) and from a frame
+    with gaps between its pixels."""
     rng = np.random.default_rng(3)
     top = np.iinfo(dtype).max
     noisy = rng.integers(0, top, SHAPE, endpoint=True).astype(dtype)
@@ -116,8 +120,13 @@ def test_unsigned_frames_reach_the_work_as_the_float_route_makes_them(dtype):
     full_scale = 2 ** bit_depth - 1
     if dtype == np.uint16:
         frames.append((beyond, "saturated"))
+    wide = np.zeros((SHAPE[0], 2 * SHAPE[1]), dtype)
+    wide[:, ::2] = noisy
+    frames.append((wide[:, ::2], None))
+    slabs = SlabRunner(SHAPE[0], SHAPE[1], 0, threads, np.uint16)
+    assert slabs.threads == threads
     for image, reason in frames:
         frame_input = FrameInput(SHAPE, bit_depth, dtype=np.uint16)
-        assert frame_input.load(image) == reason
+        assert frame_input.load(image, rows=slabs.rows) == reason
         if reason is None:
             np.testing.assert_array_equal(frame_input.work, _through_float(image, full_scale))

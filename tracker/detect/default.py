@@ -111,12 +111,14 @@ The Gaussian of step 5 and the threshold tests of steps 4 and 6 run in
 ``detect.threads`` horizontal slabs at once (tracker.detect.slabs; the
 result does not depend on the thread count). With more than one thread
 full-frame passes also run on worker threads beside Python work that does
-not need them: the median of step 3 while step 2 works out the background
-and the impulse limit (the median needs only the frame), the background's
-interpolation to full size on the other worker beside the impulse limit's;
-and the float copy of step 5, with the background read at the filtered
-statistics' samples, while step 4 measures the PSF (the impulses' second
-pass then rewrites the pixels it changes in both copies).
+not need them: the frame's copy of step 1 in two slabs; the median of step 3
+while step 2 works out the background and the impulse limit (the median
+needs only the frame), the background's interpolation to full size on the
+other worker beside the impulse limit's and step 3's first cut (the pixels
+far from their median, which needs no background); and the float copy of
+step 5, with the background read at the filtered statistics' samples, while
+step 4 measures the PSF (the impulses' second pass then rewrites the pixels
+it changes in both copies).
 
 ``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
 found in steps 3-4 plus sharp spots from step 7), sharp_spots, masked,
@@ -565,7 +567,7 @@ class DefaultDetector:
         for key in self.counters:
             self.counters[key] = 0
         timer.start("input")
-        reason = self.input.load(image)
+        reason = self.input.load(image, rows=self.impulses.slabs.rows)
         if reason is not None:
             timer.stop()
             return self.table.result(0, reason, self.counters, timer.ms)
@@ -590,11 +592,13 @@ class DefaultDetector:
         np.rint(self.float_grid, out=self.float_grid)
         np.copyto(self.int_grid, self.float_grid, casting="unsafe")
         grid.upsample(self.int_grid, self.impulse_limit)
+        timer.start("impulses")
+        self.impulses.cut(self.input.work, self.impulse_limit)   # needs no background
+        timer.start("background")
         bg_wait()
         grid.cap_in_tiles(self.level, self.bg, self.beside_body)
         timer.start("impulses")
-        self.counters.update(self.impulses.run(self.input.padded, self.input.work, self.bg_pad,
-                                               self.limit_pad, self.impulse_limit))
+        self.counters.update(self.impulses.test(self.input.padded, self.bg_pad, self.limit_pad))
         # the filter's float copy and the background at the filtered statistics' samples,
         # beside the PSF's measurement; the second impulse pass then rewrites the pixels
         # it changes in both copies

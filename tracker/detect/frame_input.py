@@ -14,6 +14,8 @@ allocates nothing.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import cv2
 import numpy as np
 
@@ -69,8 +71,15 @@ class FrameInput:
         # float copy of float frames (and, for a uint16 work, of any unusual frame)
         self.staging = np.zeros(self.shape, np.float32) if self.integer else self.work
 
-    def load(self, image: object) -> str | None:
-        """Copy ``image`` into ``work``; a reason code if it cannot be searched."""
+    def load(self, image: object,
+             rows: Callable[[Callable[[int, int], object]], None] | None = None) -> str | None:
+        """Copy ``image`` into ``work``; a reason code if it cannot be searched.
+
+        ``rows``: runs a function of a row range [first, end) over the frame's rows
+        (e.g. tracker.detect.slabs.SlabRunner.rows, in parallel threads); a uint8 or
+        uint16 frame is copied through it (the copy is memory-bound, and two cores
+        move it in little more than half the time of one).
+        """
         if not isinstance(image, np.ndarray) or image.dtype.kind not in _KINDS:
             return Reason.BAD_DTYPE
         if image.ndim != 2 or image.shape != self.shape:
@@ -78,7 +87,7 @@ class FrameInput:
         if min(self.shape) < self.min_size:
             return Reason.TOO_SMALL
         if self.integer and image.dtype in (np.uint8, np.uint16):
-            return self._load_unsigned(image)
+            return self._load_unsigned(image, rows)
         if image.dtype.kind == "f":
             np.copyto(self.staging, image, casting="unsafe")
             if not cv2.checkRange(self.staging)[0]:
@@ -107,7 +116,8 @@ class FrameInput:
             self._round(image, src)
         return None
 
-    def _load_unsigned(self, image: np.ndarray) -> str | None:
+    def _load_unsigned(self, image: np.ndarray,
+                       rows: Callable[[Callable[[int, int], object]], None] | None) -> str | None:
         """A uint8 or uint16 frame into the uint16 ``work``, clipped at full scale in the
         same pass as the copy (whole numbers already: the rounding of :meth:`_round`
         changes none; OpenCV's min takes a plain copy's time, numpy's a third more, a max
@@ -116,12 +126,10 @@ class FrameInput:
         saturated), else from the copy: clipping changes none of them (a frame flat only
         once clipped reads full scale everywhere, so saturated)."""
         work = self.work
-        if image.dtype == np.uint8 and self.full_scale >= 255.0:
-            np.copyto(work, image)                      # nothing lies above full scale
-        elif image.dtype == np.uint16 and image.strides[1] == image.itemsize:
-            cv2.min(image, self.full_scale, dst=work)   # in a plain copy's time
+        if rows is None:
+            self._copy_unsigned(image, 0, self.shape[0])
         else:
-            np.minimum(image, self.top, out=work)       # other strides: numpy's (slower)
+            rows(lambda a, b: self._copy_unsigned(image, a, b))
         first = work[0]
         if first.max() > 0 and first.min() < first.max():
             return None
@@ -134,6 +142,16 @@ class FrameInput:
         if hi == lo:
             return Reason.FLAT
         return None
+
+    def _copy_unsigned(self, image: np.ndarray, a: int, b: int) -> None:
+        """Rows [a, b) of a uint8 or uint16 ``image`` into ``work``, clipped at full scale."""
+        work, image = self.work[a:b], image[a:b]
+        if image.dtype == np.uint8 and self.full_scale >= 255.0:
+            np.copyto(work, image)                      # nothing lies above full scale
+        elif image.dtype == np.uint16 and image.strides[1] == image.itemsize:
+            cv2.min(image, self.full_scale, dst=work)   # in a plain copy's time
+        else:
+            np.minimum(image, self.top, out=work)       # other strides: numpy's (slower)
 
     def _round(self, image: np.ndarray, src: np.ndarray) -> None:
         """Clip and round any other frame into the uint16 ``work`` via ``staging``."""

@@ -50,18 +50,36 @@ class PaddedLayout:
         rows, cols = np.divmod(flat, self.stride)
         return rows - self.pad, cols - self.pad
 
-    def nonzero(self, mask_full: np.ndarray, out: np.ndarray) -> int:
+    def word_marks(self) -> np.ndarray:
+        """A bool buffer of one mark per eight bytes of a padded uint8 mask (zeroed), for
+        :meth:`mark_words` and :meth:`nonzero`."""
+        return np.zeros_like(self.word_hits)
+
+    def mark_words(self, mask_full: np.ndarray, first: int, end: int,
+                   marks: np.ndarray) -> None:
+        """Mark in ``marks`` (:meth:`word_marks`) the words of padded rows [first, end) of
+        the uint8 mask ``mask_full`` holding a nonzero byte: a caller that writes the
+        mask a few rows at a time marks them while they are still in cache."""
+        rows = mask_full[first:end].reshape(-1)
+        words = slice(first * self.stride // 8, end * self.stride // 8)
+        np.not_equal(rows.view(np.uint64), 0, out=marks[words])
+
+    def nonzero(self, mask_full: np.ndarray, out: np.ndarray,
+                marks: np.ndarray | None = None) -> int:
         """Flat indices of the nonzero bytes of a padded uint8 mask into ``out``.
 
         Returns how many there are; when that exceeds ``len(out)`` nothing is
         written. The scan reads eight pixels per step (marking the nonzero
         words in a bool buffer first, where numpy's nonzero skips runs of
         zeros quickly); its temporaries are proportional to the number of
-        nonzero pixels, not to the frame.
+        nonzero pixels, not to the frame. ``marks``: those words' marks, made
+        already (:meth:`mark_words`, every row that may hold a nonzero byte).
         """
         flat = mask_full.ravel()
-        np.not_equal(flat.view(np.uint64), 0, out=self.word_hits)
-        words = np.flatnonzero(self.word_hits)
+        if marks is None:
+            marks = self.word_hits
+            np.not_equal(flat.view(np.uint64), 0, out=marks)
+        words = np.flatnonzero(marks)
         if len(words) == 0:
             return 0
         octets = flat.reshape(-1, 8)[words]
