@@ -23,10 +23,12 @@ smooth filtered image has about one row maximum per row of a star's
 image, so only those few read the six pixels of the rows above and below.
 
 Only pixels above the threshold are visited (gathered into buffers of
-``pixel_capacity`` entries). When more pixels than that exceed it (a frame
-washed by light), the threshold is doubled until they fit and the frame is
-marked crowded (the threshold's height above the background is doubled
-by the caller's ``raise_threshold``).
+``pixel_capacity`` entries): each slab of the comparison marks the words of
+its mask holding a pixel above while they are still in the core's cache, so
+the gathering needs no further pass over the whole mask. When more pixels
+than that exceed it (a frame washed by light), the threshold is doubled
+until they fit and the frame is marked crowded (the threshold's height
+above the background is doubled by the caller's ``raise_threshold``).
 """
 
 from __future__ import annotations
@@ -65,6 +67,7 @@ class PeakFinder:
         self.pixel_capacity = int(pixel_capacity)
         self.capacity = int(capacity)
         self.mask_pad, self.mask = layout.buffer(np.uint8)
+        self.words = layout.word_marks()   # the mask's words holding a pixel above
         self.pixels = np.zeros(self.pixel_capacity, np.intp)
         self.pixel_values = np.zeros(self.pixel_capacity, dtype)
         self.positions = np.arange(self.pixel_capacity, dtype=np.intp)
@@ -125,20 +128,25 @@ class PeakFinder:
         return self._deblend(n, filt_pad)
 
     def _compare(self, filt: np.ndarray, threshold: np.ndarray) -> None:
-        mask = self.mask
-        self.slabs.rows(lambda a, b: cv2.compare(filt[a:b], threshold[a:b], cv2.CMP_GT,
-                                                 dst=mask[a:b]))
+        self.slabs.rows(lambda a, b: self._compare_rows(filt, threshold, a, b))
+
+    def _compare_rows(self, filt: np.ndarray, threshold: np.ndarray, a: int, b: int) -> None:
+        """mask = filt > threshold on frame rows [a, b) (a slab), and the words of its mask
+        holding a pixel above marked in ``words`` while they are in the core's cache."""
+        cv2.compare(filt[a:b], threshold[a:b], cv2.CMP_GT, dst=self.mask[a:b])
+        pad = self.layout.pad
+        self.layout.mark_words(self.mask_pad, pad + a, pad + b, self.words)
 
     def _above(self, filt: np.ndarray, threshold: np.ndarray, raise_threshold) -> int:
         self._compare(filt, threshold)
-        n = self.layout.nonzero(self.mask_pad, self.pixels)
+        n = self.layout.nonzero(self.mask_pad, self.pixels, marks=self.words)
         doublings = 0
         while n > self.pixel_capacity and doublings < _MAX_DOUBLINGS:
             self.crowded = True
             doublings += 1
             raise_threshold(2.0 ** doublings)
             self._compare(filt, threshold)
-            n = self.layout.nonzero(self.mask_pad, self.pixels)
+            n = self.layout.nonzero(self.mask_pad, self.pixels, marks=self.words)
         if n > self.pixel_capacity:
             n = 0
         self._n_pixels = n
