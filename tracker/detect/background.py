@@ -160,7 +160,7 @@ class BackgroundGrid:
     def stats(self, padded: np.ndarray, level: np.ndarray, noise: np.ndarray,
               floor: float, upper: bool = False, minus: bool = False,
               dark_side: np.ndarray | None = None,
-              sky_split: np.ndarray | None = None) -> None:
+              sky_split: np.ndarray | None = None, resample: bool = True) -> None:
         """Per-tile level and noise (grid shape, units of ``padded``) into the given arrays.
 
         ``padded`` is float32 or uint16. With ``minus`` the statistics are
@@ -184,27 +184,19 @@ class BackgroundGrid:
         noise of a few counts), then gets the larger, honest figure, where the
         middle-half estimate would see no spread at all. For Gaussian noise
         all three agree.
+
+        ``resample`` false: ``padded`` is the image of the last call, which was
+        made without ``minus`` (a second call for its ``dark_side``): its
+        sorted samples are taken as they are, not read and sorted again.
         """
         m = self.samples.shape[-1]
         lattice = padded.dtype == self.int_samples.dtype and not minus
-        if padded.dtype == self.int_samples.dtype:
-            np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
-            np.copyto(self.samples, self.int_samples)
-        else:
-            np.take(padded.ravel(), self.index, out=self.samples, mode="clip")
-        if minus:
-            np.subtract(self.samples, self.minus_samples, out=self.samples)
-        if lattice:
-            np.add(self.samples, self.dither, out=self.samples)
-        self.samples.sort(axis=-1)
-        if lattice:
-            # the level from the integers as read (in the same order: the dither is
-            # under half a step), not the histogram's (a tile of zeros with a few
-            # ones would read 0.02)
-            np.rint(self.samples, out=self.rounded)
-            values = self.rounded
-        else:
-            values = self.samples
+        if resample:
+            self._sample(padded, minus, lattice)
+        # the level from the integers as read (in the same order: the dither is under
+        # half a step), not the histogram's (a tile of zeros with a few ones would
+        # read 0.02)
+        values = self.rounded if lattice else self.samples
         _mean(values[..., m // 4: m - m // 4], self.level_raw)
         if lattice:
             np.greater(values, self.level_raw[..., None], out=self.is_above)
@@ -260,6 +252,24 @@ class BackgroundGrid:
             self._smooth(estimate, self.smoothed)
             np.maximum(noise, self.smoothed, out=noise)
         np.maximum(noise, floor, out=noise)
+
+    def _sample(self, padded: np.ndarray, minus: bool, lattice: bool) -> None:
+        """Read ``padded`` at the tiles' lattice into ``samples``, sorted per tile (less
+        the last :meth:`sample_minus` image with ``minus``; an integer lattice read
+        plus the dither, its integers also in ``rounded``)."""
+        if padded.dtype == self.int_samples.dtype:
+            np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
+            if lattice:    # the integers (exact in float32) plus the dither, in one pass
+                np.add(self.int_samples, self.dither, out=self.samples)
+            else:
+                np.copyto(self.samples, self.int_samples)
+        else:
+            np.take(padded.ravel(), self.index, out=self.samples, mode="clip")
+        if minus:
+            np.subtract(self.samples, self.minus_samples, out=self.samples)
+        self.samples.sort(axis=-1)
+        if lattice:
+            np.rint(self.samples, out=self.rounded)
 
     def sample_minus(self, minus: np.ndarray) -> None:
         """Read ``minus`` (float32, padded like the frames) at the sampled pixels, for

@@ -580,7 +580,8 @@ class DefaultDetector:
                    upper=True)
         if self._mark_dark_side():
             grid.stats(self.input.padded, self.level, self.noise, QUANTISATION_NOISE_ADU,
-                       upper=True, dark_side=self.dark_side, sky_split=self.sky_split)
+                       upper=True, dark_side=self.dark_side, sky_split=self.sky_split,
+                       resample=False)
             self.sky_model = sky_noise_model(self.level, self.noise, self.saturation)
         # the background's interpolation on the filter's worker (idle until step 4; the
         # impulse stage's is still busy with the median), while the impulse limit's is
