@@ -599,7 +599,9 @@ class DefaultDetector:
         bg_wait()
         grid.cap_in_tiles(self.level, self.bg, self.beside_body)
         timer.start("impulses")
-        self.counters.update(self.impulses.test(self.input.padded, self.bg_pad, self.limit_pad))
+        # hot pixels and tracks are told apart by the second pass (_refine_impulses)
+        self.counters.update(self.impulses.test(self.input.padded, self.bg_pad, self.limit_pad,
+                                                split=False))
         # the filter's float copy and the background at the filtered statistics' samples,
         # beside the PSF's measurement; the second impulse pass then rewrites the pixels
         # it changes in both copies

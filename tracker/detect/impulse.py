@@ -234,9 +234,11 @@ class ImpulseFilter:
         self.slabs.rows(lambda a, b: self._first_cut(work[a:b], limit[a:b], a, b))
         self._listed = self.layout.nonzero(self.mask_pad, self.index, marks=self.cut_words)
 
-    def test(self, work_pad: np.ndarray, bg_pad: np.ndarray, limit_pad: np.ndarray) -> dict:
+    def test(self, work_pad: np.ndarray, bg_pad: np.ndarray, limit_pad: np.ndarray,
+             split: bool = True) -> dict:
         """Replace the impulses among the last :meth:`cut`'s candidates; counts (arguments
-        as :meth:`run`'s)."""
+        as :meth:`run`'s). ``split`` false: ``impulse_pixels`` only, for a caller that
+        calls :meth:`refine` next, which counts them all again."""
         counts = self.counts
         for key in counts:
             counts[key] = 0
@@ -254,7 +256,7 @@ class ImpulseFilter:
             np.copyto(work_pad, self.median_pad, where=imp)
             counts["impulse_pixels"] = int(np.count_nonzero(imp))
             return counts
-        self._sparse(n, work_pad, bg_pad, limit_pad)
+        self._sparse(n, work_pad, bg_pad, limit_pad, split)
         return counts
 
     def _lone_full_scale(self, work_pad: np.ndarray) -> np.ndarray:
@@ -670,7 +672,7 @@ class ImpulseFilter:
                                    self.cut_words)
 
     def _sparse(self, n: int, work_pad: np.ndarray, bg_pad: np.ndarray,
-                limit_pad: np.ndarray) -> None:
+                limit_pad: np.ndarray, split: bool) -> None:
         idx = self.index[:n]
         w, m, b, lim = (v[:n] for v in self.values)
         flat = work_pad.ravel()
@@ -687,7 +689,10 @@ class ImpulseFilter:
         np.put(flat, idx, w, mode="clip")
         np.copyto(self.replaced[:n], imp)
         self._n = n
-        self._count(n, idx, imp, self.charge[:n])
+        if split:
+            self._count(n, idx, imp, self.charge[:n])
+        else:
+            self.counts["impulse_pixels"] = int(np.count_nonzero(imp))
 
     def _count(self, n: int, idx: np.ndarray, imp: np.ndarray, charge: np.ndarray) -> None:
         """Count the impulses; split those of added charge into hot pixels and cosmic-ray
