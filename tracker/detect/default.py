@@ -765,7 +765,7 @@ class DefaultDetector:
         self._make_threshold(1.0)
         timer.start("peaks")
         n = self.peaks.find(self.filt_pad, self.filt, self.threshold, self.bg_pad,
-                            self._make_threshold, self._noise_f_at)
+                            self._make_threshold, self._noise_f_at, finish=self._raise_edges)
         self.counters["candidates"] = n
         timer.start("centroid")
         return self._measure(n)
@@ -1136,13 +1136,14 @@ class DefaultDetector:
             out.ravel()[where[sky]] = middle[sky]
 
     def _make_threshold(self, factor: float) -> None:
-        """Threshold image: background + level left + factor * threshold_k * noise."""
+        """Threshold image: background + level left + factor * threshold_k * noise; its
+        height is raised near the borders by :meth:`_raise_edges`, which the peak search
+        calls on each slab of rows it compares."""
         np.multiply(self.noise_f, factor * self.threshold_k, out=self.float_grid)
         np.add(self.float_grid, self.residual, out=self.float_grid)
         np.add(self.float_grid, self.level, out=self.float_grid)
         self.grid.upsample(self.float_grid, self.threshold)
         self.grid.cap_in_tiles(self.float_grid, self.threshold, self.beside_body)
-        self._raise_edges()
 
     def _light_clips(self, bg: np.ndarray) -> np.ndarray:
         """Whether full scale lies far above each background ``bg`` (ADU): by
@@ -1216,8 +1217,7 @@ class DefaultDetector:
         """Spread the filter's noise gains at the first rows (``top``) and columns
         (``left``; the last ones mirror them) over the four border strips they scale."""
         r, c = len(top), len(left)
-        self.edge_strips = ((slice(0, r), slice(None)), (slice(-r, None), slice(None)),
-                            (slice(None), slice(0, c)), (slice(None), slice(-c, None)))
+        self.edge_rows, self.edge_cols = r, c
         self.edge_gain_strips = (self.row_gains[0, :r], self.row_gains[1, :r],
                            self.col_gains[0, :, :c], self.col_gains[1, :, :c])
         for gain, profile in zip(self.edge_gain_strips, (top[:, None], top[::-1, None],
@@ -1225,16 +1225,29 @@ class DefaultDetector:
                                  strict=True):
             np.copyto(gain, profile)
 
-    def _raise_edges(self) -> None:
-        """Scale the threshold's height above the background near the borders.
+    def _raise_edges(self, first: int, end: int) -> None:
+        """Scale the threshold's height above the background near the borders, on frame
+        rows [first, end).
 
         There the reflected filter has more noise (``_reflected_noise_gain``).
-        The strips in OpenCV's arithmetic, which runs along their rows in one
-        call (numpy's would step a loop of a few pixels per row down the side
-        strips): the same float32 operations, a quarter of the time.
+        The peak search calls this on each slab of rows just before comparing
+        it (tracker.detect.peaks), in that slab's thread, while the rows come
+        into its cache. Each pixel meets the strips in one order (top, bottom,
+        left, right), the same float32 operations as over the whole frame at
+        once. The strips in OpenCV's arithmetic, which runs along their rows in
+        one call (numpy's would step a loop of a few pixels per row down the
+        side strips): a quarter of the time.
         """
         t, b = self.threshold, self.bg
-        for sl, gain in zip(self.edge_strips, self.edge_gain_strips, strict=True):
+        r, c = self.edge_rows, self.edge_cols
+        parts = []
+        for start, gain in ((0, self.row_gains[0]), (self.layout.rows - r, self.row_gains[1])):
+            lo, hi = max(first, start), min(end, start + r)
+            if lo < hi:
+                parts.append((np.s_[lo:hi], gain[lo - start:hi - start]))
+        parts.append((np.s_[first:end, :c], self.col_gains[0, first:end, :c]))
+        parts.append((np.s_[first:end, -c:], self.col_gains[1, first:end, :c]))
+        for sl, gain in parts:
             strip, under = t[sl], b[sl]
             cv2.subtract(strip, under, dst=strip)
             cv2.multiply(strip, gain, dst=strip)

@@ -109,7 +109,7 @@ class PeakFinder:
         self.radius = int(radius)
 
     def find(self, filt_pad: np.ndarray, filt: np.ndarray, threshold: np.ndarray,
-             bg_pad: np.ndarray, raise_threshold, noise_at) -> int:
+             bg_pad: np.ndarray, raise_threshold, noise_at, finish=None) -> int:
         """Candidates into ``cand[:n]`` (padded flat indices, brightest first); returns n.
 
         ``filt`` is the interior view of ``filt_pad``, the filtered image with
@@ -119,33 +119,42 @@ class PeakFinder:
         the background multiplied by ``factor`` (used when crowded);
         ``noise_at(flat, out)`` gives the filtered noise at padded flat
         indices. ``cand_values[:n]`` are filtered values above the
-        background. Sets ``blended[:n]`` and ``crowded``.
+        background. ``finish(first, end)``, if given, completes the
+        threshold's frame rows [first, end) before they are compared: each
+        slab of the comparison calls it on its own rows, in its own thread,
+        after every (re)filling of the threshold. Sets ``blended[:n]`` and
+        ``crowded``.
         """
         self.crowded = False
-        n = self._above(filt, threshold, raise_threshold)
+        n = self._above(filt, threshold, raise_threshold, finish)
         n = self._local_maxima(n, filt_pad)
         n = self._rank(n, bg_pad, noise_at)
         return self._deblend(n, filt_pad)
 
-    def _compare(self, filt: np.ndarray, threshold: np.ndarray) -> None:
-        self.slabs.rows(lambda a, b: self._compare_rows(filt, threshold, a, b))
+    def _compare(self, filt: np.ndarray, threshold: np.ndarray, finish=None) -> None:
+        self.slabs.rows(lambda a, b: self._compare_rows(filt, threshold, a, b, finish))
 
-    def _compare_rows(self, filt: np.ndarray, threshold: np.ndarray, a: int, b: int) -> None:
-        """mask = filt > threshold on frame rows [a, b) (a slab), and the words of its mask
-        holding a pixel above marked in ``words`` while they are in the core's cache."""
+    def _compare_rows(self, filt: np.ndarray, threshold: np.ndarray, a: int, b: int,
+                      finish) -> None:
+        """mask = filt > threshold on frame rows [a, b) (a slab; ``finish`` as
+        :meth:`find`'s), and the words of its mask holding a pixel above marked in
+        ``words`` while they are in the core's cache."""
+        if finish is not None:
+            finish(a, b)
         cv2.compare(filt[a:b], threshold[a:b], cv2.CMP_GT, dst=self.mask[a:b])
         pad = self.layout.pad
         self.layout.mark_words(self.mask_pad, pad + a, pad + b, self.words)
 
-    def _above(self, filt: np.ndarray, threshold: np.ndarray, raise_threshold) -> int:
-        self._compare(filt, threshold)
+    def _above(self, filt: np.ndarray, threshold: np.ndarray, raise_threshold,
+               finish=None) -> int:
+        self._compare(filt, threshold, finish)
         n = self.layout.nonzero(self.mask_pad, self.pixels, marks=self.words)
         doublings = 0
         while n > self.pixel_capacity and doublings < _MAX_DOUBLINGS:
             self.crowded = True
             doublings += 1
             raise_threshold(2.0 ** doublings)
-            self._compare(filt, threshold)
+            self._compare(filt, threshold, finish)
             n = self.layout.nonzero(self.mask_pad, self.pixels, marks=self.words)
         if n > self.pixel_capacity:
             n = 0
