@@ -79,3 +79,39 @@ def test_the_first_cut_lists_every_pixel_beyond_the_limit_from_its_median(thread
         n = impulses._listed
         assert n == len(rows) > 150
         np.testing.assert_array_equal(impulses.index[:n], layout.flat_index(rows, cols))
+
+
+def test_a_first_pass_that_does_not_split_its_counts_leaves_the_second_pass_the_same():
+    """test(..., split=False) counts only the impulse pixels; refine, which counts hot
+    pixels and tracks itself, then replaces the same pixels and reports the same counts as
+    after a first pass that split them (hot pixels, a track, dead pixels, a star)."""
+    rng = np.random.default_rng(13)
+    shape = (120, 100)
+    layout = PaddedLayout(shape, 8)
+    base = rng.poisson(BACKGROUND, shape).astype(np.uint16)
+    base.ravel()[rng.choice(base.size, 40, replace=False)] += 90     # hot pixels
+    base[30, 20:32] += 120                                           # a track
+    base[31, 24:29] += 60
+    base.ravel()[rng.choice(base.size, 10, replace=False)] = 0       # dead pixels
+    _star(base, 80, 60, 1.5, 400.0)
+    out = []
+    for split in (True, False):
+        pad, frame = layout.buffer(np.uint16)
+        frame[:] = base
+        bg_pad, bg = layout.buffer(np.float32)
+        bg[:] = BACKGROUND
+        limit_pad, limit = layout.buffer(np.uint16)
+        limit[:] = LIMIT
+        impulses = ImpulseFilter(layout, 0.5 * (1.0 + psf_contrast(0.55, worst_phase=True)),
+                                 4096, np.uint16)
+        impulses.cut(frame, limit)
+        first = dict(impulses.test(pad, bg_pad, limit_pad, split=split))
+        counts = dict(impulses.refine(pad, bg_pad, limit_pad, 0.5 * (1.0 + psf_contrast(
+            0.9 * 1.5, True)), 0.5 * psf_ring(0.9 * 1.5)))
+        out.append((first, counts, pad.copy()))
+    (split_first, split_counts, split_pad), (first, counts, frame_pad) = out
+    assert first == {"impulse_pixels": split_first["impulse_pixels"], "hot_pixels": 0,
+                     "cosmic_rays": 0}
+    assert split_first["hot_pixels"] > 30 and split_counts["cosmic_rays"] >= 1
+    assert counts == split_counts
+    np.testing.assert_array_equal(frame_pad, split_pad)
