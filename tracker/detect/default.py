@@ -109,7 +109,9 @@ handled, sigma 3.5 px):
 
 The Gaussian of step 5 and the threshold tests of steps 4 and 6 run in
 ``detect.threads`` horizontal slabs at once (tracker.detect.slabs; the
-result does not depend on the thread count). With more than one thread
+result does not depend on the thread count); each slab of step 6 raises
+the threshold's border strips on its own rows just before comparing them,
+and marks the words of its mask holding a candidate. With more than one thread
 full-frame passes also run on worker threads beside Python work that does
 not need them: the frame's copy of step 1 in two slabs; the median of step 3
 while step 2 works out the background and the impulse limit (the median
