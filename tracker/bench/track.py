@@ -1,12 +1,19 @@
 """Tracking: windowed against full-frame on the same slewed frames, errors against truth, memory.
 
-Scenarios (``--scenarios``, ``lens_mm:rate_deg_s:seconds`` each) render a
-constant-rate slew about a random axis from a random attitude at ``--fps``
-with ``--exposure-ms`` of smear (tracker.sim, realistic sensor), one frame
-in the middle dark (a blackout: the sky at its median level, no stars).
-What the tracker cannot know is randomised per scenario: the PSF width
+Scenarios (``--scenarios``, ``lens_mm:rate_deg_s:seconds[:draws]`` each)
+render a constant-rate slew about a random axis from a random attitude at
+``--fps`` with ``--exposure-ms`` of smear (tracker.sim, realistic sensor),
+one frame in the middle dark (a blackout: the sky at its median level, no
+stars). What the tracker cannot know is randomised per draw: the PSF width
 (1.0-1.6 px; the detector assumes 1.2) and the lens's focal length (within
-2 % of the configured one; the solver learns it).
+2 % of the configured one; the solver learns it). A scenario of several
+draws renders that many such sequences, each with its own attitude, axis,
+PSF and focal length and fresh pipelines, and pools their frames: a slew
+sweeps the sky through many star fields, but a still camera sees one, and
+its errors are then mostly that field's fixed bias (which stars, at which
+pixel phases, under which lens error), so one still draw is one sample of
+the error and a windowed/full ratio from it says little; the per-draw
+ratios are reported beside the pooled one.
 
 Every frame goes through two pipelines in turn, in the same process:
 
@@ -66,6 +73,7 @@ from tracker.catalogue import load_catalogue
 from tracker.config import Config
 from tracker.daemon import Daemon, DaemonLink
 from tracker.daemon.notify import Notifier
+from tracker.errors import UserError
 from tracker.pipeline import Pipeline
 from tracker.protocol.nullmodem import ReplugPty
 from tracker.sim import random_attitude, render_sequence, render_sky, write_frame
@@ -77,8 +85,9 @@ ARMS = ("full", "windows")
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--scenarios", default="16:0:10,16:1:60,16:2:10,16:3:10,8:1:10,8:3:10",
-                   help="lens_mm:rate_deg_s:seconds, comma separated")
+    p.add_argument("--scenarios", default="16:0:10:5,16:1:60,16:2:10,16:3:10,8:1:10,8:3:10",
+                   help="lens_mm:rate_deg_s:seconds[:draws], comma separated (draws "
+                        "default 1)")
     p.add_argument("--fps", type=float, default=10.0, help="frame rate of the slews")
     p.add_argument("--exposure-ms", type=float, default=20.0, help="exposure (sets the smear)")
     p.add_argument("--peer-frames", type=int, default=3,
@@ -90,20 +99,47 @@ def add_arguments(p) -> None:
     p.add_argument("--seed", type=int, default=13)
 
 
-def parse_scenarios(text: str) -> list[tuple[float, float, float]]:
-    """[(lens_mm, rate_deg_s, seconds)] from ``lens:rate:seconds,...``."""
+def parse_scenarios(text: str) -> list[tuple[float, float, float, int]]:
+    """[(lens_mm, rate_deg_s, seconds, draws)] from ``lens:rate:seconds[:draws],...``.
+
+    Raises UserError (one line, exit 2) naming the item when one is malformed.
+    """
     out = []
     for item in text.split(","):
-        lens, rate, seconds = (float(v) for v in item.split(":"))
-        out.append((lens, rate, seconds))
+        fields = item.split(":")
+        try:
+            if len(fields) not in (3, 4):
+                raise ValueError
+            lens, rate, seconds = (float(v) for v in fields[:3])
+            draws = int(fields[3]) if len(fields) == 4 else 1
+            if lens <= 0 or rate < 0 or seconds <= 0 or draws < 1:
+                raise ValueError
+        except ValueError:
+            raise UserError(f"--scenarios {item!r}: expected lens_mm:rate_deg_s:seconds[:draws] "
+                             "with lens and seconds > 0, rate >= 0, draws >= 1") from None
+        out.append((lens, rate, seconds, draws))
     return out
 
 
-def _arm_stats(rows: list[dict], dark: int) -> dict:
-    tracked = [r for r in rows if r["mode"] == "tracking" and r["i"] >= 3]
-    lost = [r["i"] for r in rows if r["i"] >= 3 and r["i"] != dark and r["mode"] != "tracking"]
+def _frames_to_relock(rows: list[dict], dark: int) -> int | None:
+    """Frames after the dark one until tracking again (1: the next frame), None if never."""
     after = [r for r in rows if r["i"] > dark]
-    relock = next((k + 1 for k, r in enumerate(after) if r["mode"] == "tracking"), None)
+    return next((k + 1 for k, r in enumerate(after) if r["mode"] == "tracking"), None)
+
+
+def _arm_stats(draws: list[tuple[list[dict], int]]) -> dict:
+    """One arm's statistics pooled over draws, each (its rows, its dark frame's index).
+
+    Lock losses are (draw, frame) pairs; the frames until tracking again after the dark
+    frame are the worst draw's (None when a draw never tracked again).
+    """
+    rows = [r for draw_rows, _ in draws for r in draw_rows]
+    darks = {draw_rows[0]["draw"]: dark for draw_rows, dark in draws}
+    tracked = [r for r in rows if r["mode"] == "tracking" and r["i"] >= 3]
+    lost = [(r["draw"], r["i"]) for r in rows
+            if r["i"] >= 3 and r["i"] != darks[r["draw"]] and r["mode"] != "tracking"]
+    relocks = [_frames_to_relock(draw_rows, dark) for draw_rows, dark in draws]
+    relock = None if None in relocks else max(relocks)
 
     def rms(key):
         v = np.array([r[key] for r in tracked])
@@ -148,19 +184,16 @@ def _row(i: int, result, R_true, rate_deg_s) -> dict:
     return row
 
 
-def run_scenario(cfg: Config, catalogue, lens_mm: float, rate: float, seconds: float,
-                 fps: float, exposure_ms: float, peer_frames: int,
-                 rng: np.random.Generator) -> dict:
-    """One scenario (module docstring): both arms' per-frame rows and their statistics."""
-    cam = dataclasses.replace(cfg.camera, focal_length_mm=lens_mm)
-    cfg = dataclasses.replace(cfg, camera=cam)
-    seen_lens = dataclasses.replace(cam, focal_length_mm=lens_mm * (1 + rng.uniform(-0.02,
-                                                                                    0.02)))
+def _run_draw(cfg: Config, catalogue, rate: float, n: int, fps: float, exposure_ms: float,
+              peer_frames: int, rng: np.random.Generator, draw: int) -> dict:
+    """One draw of a scenario (module docstring): both arms' rows, the peers' ms, its truth."""
+    cam = cfg.camera
+    seen_lens = dataclasses.replace(cam, focal_length_mm=cam.focal_length_mm
+                                    * (1 + rng.uniform(-0.02, 0.02)))
     psf = float(rng.uniform(1.0, 1.6))
     sim = dataclasses.replace(cfg.sim, psf_sigma_px=psf, exposure_ms=exposure_ms)
     axis = rng.normal(size=3)
     rate_deg_s = axis / np.linalg.norm(axis) * rate
-    n = max(8, int(round(seconds * fps)))
     dark = n // 2
     arms = {"full": Pipeline(dataclasses.replace(cfg, identify=dataclasses.replace(
         cfg.identify, track_windows=False))), "windows": Pipeline(cfg)}
@@ -174,22 +207,54 @@ def run_scenario(cfg: Config, catalogue, lens_mm: float, rate: float, seconds: f
         t_ns = int(round(i * 1e9 / fps))
         for arm in (ARMS if i % 2 == 0 else ARMS[::-1]):      # alternate who goes first
             result = arms[arm].process(image, cam.bit_depth, t_ns, exposure_s=exposure_ms / 1e3)
-            rows[arm].append(_row(i, result, frame.R, rate_deg_s))
+            rows[arm].append(_row(i, result, frame.R, rate_deg_s) | {"draw": draw})
         if i < peer_frames:
             for name in peers:
                 t0 = time.perf_counter()
                 PEERS[name](image)
                 peers[name].append((time.perf_counter() - t0) * 1e3)
-    stats = {arm: _arm_stats(rows[arm], dark) for arm in ARMS}
+    return {"psf_sigma_px": psf, "focal_length_mm": seen_lens.focal_length_mm,
+            "rate_vector_deg_s": rate_deg_s.tolist(), "dark_frame": dark, "rows": rows,
+            "peers_ms": peers}
+
+
+def run_scenario(cfg: Config, catalogue, lens_mm: float, rate: float, seconds: float,
+                 fps: float, exposure_ms: float, peer_frames: int,
+                 rng: np.random.Generator, draws: int = 1) -> dict:
+    """One scenario of ``draws`` draws (module docstring): both arms' per-frame rows (each
+    with its draw), their statistics pooled over the draws, and each draw's truth and
+    windowed/full cross and roll ratios."""
+    cam = dataclasses.replace(cfg.camera, focal_length_mm=lens_mm)
+    cfg = dataclasses.replace(cfg, camera=cam)
+    n = max(8, int(round(seconds * fps)))
+    # the first draw continues the bench's stream, so a scenario's first draw (and every
+    # later scenario) is the same whatever the number of draws; the others have streams of
+    # their own, spawned from the seed
+    draw_rngs = [rng, *rng.spawn(draws - 1)]
+    runs = [_run_draw(cfg, catalogue, rate, n, fps, exposure_ms, peer_frames, draw_rng, d)
+            for d, draw_rng in enumerate(draw_rngs)]
+    rows = {arm: [r for run in runs for r in run["rows"][arm]] for arm in ARMS}
+    stats = {arm: _arm_stats([(run["rows"][arm], run["dark_frame"]) for run in runs])
+             for arm in ARMS}
+    per_draw = []
+    for run in runs:
+        draw_stats = {arm: _arm_stats([(run["rows"][arm], run["dark_frame"])]) for arm in ARMS}
+        per_draw.append({k: run[k] for k in ("psf_sigma_px", "focal_length_mm",
+                                             "rate_vector_deg_s", "dark_frame")}
+                        | {f"{axis}_ratio": draw_stats["windows"][f"{axis}_rms_arcsec"]
+                           / draw_stats["full"][f"{axis}_rms_arcsec"]
+                           for axis in ("cross", "roll")})
     full_rows = [r for r in rows["full"] if r["i"] >= 3]
     full_detect = float(np.median([r["detect_ms"] for r in full_rows]))
     full_detect_cpu = float(np.median([r["detect_cpu_ms"] for r in full_rows]))
-    paired = [w["ms"] / f["detect_ms"] for w, f in zip(rows["windows"], rows["full"], strict=True)
-              if w["i"] >= 3 and w["mode"] == "tracking" and f["detect_ms"] > 0]
-    return {"lens_mm": lens_mm, "rate_deg_s": rate, "seconds": seconds, "frames": n,
-            "dark_frame": dark, "psf_sigma_px": psf,
-            "focal_length_mm": seen_lens.focal_length_mm, "rate_vector_deg_s":
-            rate_deg_s.tolist(), "full_detect_ms_median": full_detect,
+    full_by_frame = {(r["draw"], r["i"]): r for r in rows["full"]}
+    paired = [w["ms"] / full_by_frame[w["draw"], w["i"]]["detect_ms"] for w in rows["windows"]
+              if w["i"] >= 3 and w["mode"] == "tracking"
+              and full_by_frame[w["draw"], w["i"]]["detect_ms"] > 0]
+    peers = {name: [ms for run in runs for ms in run["peers_ms"][name]]
+             for name in runs[0]["peers_ms"]}
+    return {"lens_mm": lens_mm, "rate_deg_s": rate, "seconds": seconds, "frames": n * draws,
+            "draws": per_draw, "full_detect_ms_median": full_detect,
             "full_detect_cpu_ms_median": full_detect_cpu,
             "cost_ratio": stats["windows"]["frame_ms_median"] / full_detect,
             "paired_ratio_median": float(np.median(paired)) if paired else math.nan,
@@ -255,7 +320,7 @@ def _markdown(machine: dict, args, results: list[dict], memory: dict | None) -> 
     lines = ["# tracker bench track", "",
              "Machine: " + ", ".join(f"{k} {v}" for k, v in machine.items()), "",
              f"{args.fps:g} fps, {args.exposure_ms:g} ms exposure, realistic sensor, PSF "
-             "1.0-1.6 px and focal length within 2 % per scenario, one dark frame in the "
+             "1.0-1.6 px and focal length within 2 % per draw, one dark frame per draw in the "
              f"middle; seed {args.seed}. Both arms on every frame in the same run.", "",
              "| lens | rate deg/s | frames | arm | tracked | lock lost | back after dark "
              "| cross RMS\" | roll RMS\" | rate RMS deg/s (x, y, z) | frame ms | detect ms |",
@@ -286,6 +351,14 @@ def _markdown(machine: dict, args, results: list[dict], memory: dict | None) -> 
             f"1/{1 / r['cpu_ratio']:.1f} | "
             f"{w['cross_rms_arcsec'] / f['cross_rms_arcsec']:.2f}, "
             f"{w['roll_rms_arcsec'] / f['roll_rms_arcsec']:.2f} | {peers} |")
+    for r in results:
+        if len(r["draws"]) > 1:
+            lines += ["", f"{r['lens_mm']:g} mm, {r['rate_deg_s']:g} deg/s: "
+                      f"{len(r['draws'])} draws pooled above; each draw's PSF sigma, focal "
+                      "length and windowed / full cross, roll RMS: " + "; ".join(
+                          f"{d['psf_sigma_px']:.2f} px, {d['focal_length_mm']:.2f} mm, "
+                          f"{d['cross_ratio']:.2f}, {d['roll_ratio']:.2f}" for d in r["draws"])
+                      + "."]
     if memory is not None:
         lines += ["", f"Whole service, {memory['frames']} frames ({memory['windowed_frames']} "
                   f"tracked in windows), {memory['fps']:.0f} fps with tracemalloc on: Python "
@@ -302,10 +375,11 @@ def run(args, cfg) -> int:
     rng = np.random.default_rng(args.seed)
     catalogue = load_catalogue(cfg.catalogue.path, cfg.catalogue.epoch_year)
     results = []
-    for lens, rate, seconds in parse_scenarios(args.scenarios):
-        print(f"track: {lens:g} mm, {rate:g} deg/s, {seconds:g} s", flush=True)
+    for lens, rate, seconds, draws in parse_scenarios(args.scenarios):
+        print(f"track: {lens:g} mm, {rate:g} deg/s, {seconds:g} s"
+              + (f", {draws} draws" if draws > 1 else ""), flush=True)
         results.append(run_scenario(cfg, catalogue, lens, rate, seconds, args.fps,
-                                    args.exposure_ms, args.peer_frames, rng))
+                                    args.exposure_ms, args.peer_frames, rng, draws))
     memory = None
     if args.memory_frames > 0:
         print(f"track: {args.memory_frames} frames through the service", flush=True)
