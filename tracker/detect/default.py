@@ -39,7 +39,10 @@ handled, sigma 3.5 px):
    hits of a particle event can outnumber the bright stars and agree on
    it, and where the binned frame's stars agree on one 1.5 times wider,
    theirs is the frame's (the optics never blur a particle's charge, and
-   blur every star alike). The frame is then
+   blur every star alike); where only 3-4 binned stars agree on one that
+   much wider, beyond their error, the sharp spots were charge all the
+   same, and the frame goes unmeasured rather than measured on them. The
+   frame is then
    searched once (steps 5-7) with that PSF, the impulses' second pass
    judged against the sharpest PSF handled, and the lone impulse candidates
    (no track beside them) judged against the measured one after the search,
