@@ -39,7 +39,10 @@ handled, sigma 3.5 px):
    hits of a particle event can outnumber the bright stars and agree on
    it, and where the binned frame's stars agree on one 1.5 times wider,
    theirs is the frame's (the optics never blur a particle's charge, and
-   blur every star alike). The frame is then
+   blur every star alike); where only 3-4 binned stars agree on one that
+   much wider, beyond their error, the sharp spots were charge all the
+   same, and the frame goes unmeasured rather than measured on them. The
+   frame is then
    searched once (steps 5-7) with that PSF, the impulses' second pass
    judged against the sharpest PSF handled, and the lone impulse candidates
    (no track beside them) judged against the measured one after the search,
@@ -822,14 +825,22 @@ class DefaultDetector:
         PSF's are single binned pixels there, too sharp to be measured) agree on a PSF
         ``OPTICS_WIDER`` times wider, the sharp spots were charge, and the binned
         measurement is the frame's. Fewer than ``psf_min_stars`` binned stars do not
-        overrule the sharp spots: three faint stars of a sharp PSF, undersampled, can read
-        twice its width, and the frame would go unmeasured. Returns (measured, bound,
-        binned, few) as in :meth:`detect`.
+        measure the PSF (three faint stars of a sharp PSF, undersampled, can read twice
+        its width), but where they agree on one that much wider and beyond their
+        standard errors (:func:`_contradicts`), the sample is bimodal: a sharp
+        population beside stars the optics blurred, which a particle event's hits make
+        and a sharp PSF's stars do not. The sharp spots then set nothing: the frame is
+        unmeasured (the estimate carried on, or the few stars' if they contradict it,
+        as in :meth:`detect`), with the few's sharpest star bounding the PSF for the
+        lone impulses. Returns (measured, bound, binned, few) as in :meth:`detect`.
         """
-        wide = self._binned_psf()[0]
-        if wide is None or wide.sigma_px < OPTICS_WIDER * sharp.sigma_px:
-            return sharp, None, False, None
-        return wide, None, True, None
+        wide, bound, few = self._binned_psf()
+        if wide is not None and wide.sigma_px >= OPTICS_WIDER * sharp.sigma_px:
+            return wide, None, True, None
+        if (few is not None and few.sigma_px >= OPTICS_WIDER * sharp.sigma_px
+                and _contradicts(few, sharp)):
+            return None, bound, False, few
+        return sharp, None, False, None
 
     def _retest_lone(self, count: int, sigma_px: float) -> int:
         """Judge the lone impulse candidates again against a PSF of ``sigma_px``
