@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from test_detect_significance import _star
 
-import tracker.detect.default as default
+import tracker.detect.spot_shapes as spot_shapes
 from tracker.config import DetectConfig
 from tracker.detect import make_detector
 from tracker.detect.default import effective_sigma
@@ -118,6 +118,6 @@ def test_track_remnants_are_rejected(monkeypatch):
     found, clear, false = _run(11, 0.8, (150.0, 1500.0), 40, 200)
     assert found == clear
     assert false <= 10, false
-    monkeypatch.setattr(default, "_REMNANT_ROUGH", np.inf)
+    monkeypatch.setattr(spot_shapes, "_REMNANT_ROUGH", np.inf)
     _, _, false_without = _run(11, 0.8, (150.0, 1500.0), 40, 200)
     assert false < false_without, (false, false_without)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-import tracker.detect.default as default
+import tracker.detect.spot_shapes as spot_shapes
 from tracker.config import DetectConfig
 from tracker.detect import make_detector
 from tracker.detect.default import effective_sigma
@@ -121,7 +121,7 @@ def test_faint_spots_far_narrower_than_a_star_are_rejected(monkeypatch):
     its median by half the star's peak, is dropped with it)."""
     found, false = _hot_pixel_frames(2, measure=False)
     found_measured, false_measured = _hot_pixel_frames(2)
-    monkeypatch.setattr(default, "_WIDTH_SPREADS", np.inf)
+    monkeypatch.setattr(spot_shapes, "_WIDTH_SPREADS", np.inf)
     found_without, false_without = _hot_pixel_frames(2, measure=False)
     assert found == found_without
     assert false <= false_without - 5, (false, false_without)

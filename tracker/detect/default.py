@@ -83,16 +83,12 @@ handled, sigma 3.5 px):
    (tracker.detect.windowed); the flux reported is the PSF-weighted sum's
    (tracker.detect.weighted_flux: the noise and background error of the
    PSF's effective area, not of the whole window), a saturated star's its
-   window's sum. Spots much narrower than the PSF, or rougher
-   at the pixel scale than a star of their flux (cosmic-ray clusters that
-   survived steps 3-4; tracker.detect.roughness), are rejected and counted
-   (fainter ones when narrower than a star beyond their noise, or, against
-   a PSF the frame's stars measured, when their 3 x 3 holds a point, a hot
-   pixel's or a particle's charge, beyond a star's noise:
-   tracker.detect.point_spot); so are
-   saturated spots holding less light than the PSF's area times their
-   clipped peak (judged at any SNR: on glare a track's SNR is low, its
-   shape still plain). Maxima on a bright body are masked
+   window's sum. Spots sharper than the optics deliver
+   (cosmic-ray clusters that survived steps 3-4, hot pixels) are rejected
+   and counted, broad ones flagged EXTENDED or masked as bodies
+   (tracker.detect.spot_shapes); so are fainter spots whose 3 x 3 holds a
+   point beyond a star's noise, against a PSF the frame's stars measured
+   (tracker.detect.point_spot). Maxima on a bright body are masked
    (tracker.detect.surroundings): too few sky sectors around them, light
    along a line with sky across it (a crescent, a ghost's ring), or a
    clipped plateau shared with another saturated candidate (the Earth's lit
@@ -150,7 +146,6 @@ from tracker.detect.frame_input import FrameInput, Reason
 from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.multiplicative import MultiplicativeFit
-from tracker.detect.order import median
 from tracker.detect.peaks import PeakFinder
 from tracker.detect.point_spot import POINT_OFFSETS, Z_STAR_LOSS, point_significance
 from tracker.detect.psf import (
@@ -169,7 +164,14 @@ from tracker.detect.roughness import StarRoughness
 from tracker.detect.sigma_steps import SigmaSteps
 from tracker.detect.significance import shot_noise_snr
 from tracker.detect.slabs import SlabRunner
-from tracker.detect.star_width import lowest_phase_width, sharper_than_stars
+from tracker.detect.spot_shapes import (
+    STAR_ELLIPTICITY,
+    STAR_WIDTH,
+    broad_spots,
+    common_elongation,
+    sharp_spots,
+)
+from tracker.detect.star_width import lowest_phase_width
 from tracker.detect.stars import StarTable
 from tracker.detect.surroundings import Surroundings, across_a_line, sky_noise_model
 from tracker.detect.threshold import (
@@ -199,22 +201,7 @@ _PLATEAU_STARS = 64            # saturated stars centred on their clipped core, 
 _PLATEAU_FILL = 0.7            # ... when its radius is this much of the window's
 _PLATEAU_PAIRS = 65536         # pairs of saturated candidates judged for sharing a plateau
 _CHUNK = 512                   # stars centroided at a time (bounds the window buffers)
-_ROUGH_REFERENCE_SNR = 30.0    # spots this bright set the frame's roughness scale
-_ROUGH_SPREADS = 4.0           # rougher than a star by this many of its noise's spreads
-_STAR_WIDTH = math.log(1.25)   # ... if their width is within 25 % of the PSF's
-_STAR_ELLIPTICITY = 0.2        # ... and they are round
-_TRACK_WIDTH = 0.6             # a spot this narrow across (PSF = 1) and ...
-_TRACK_ELLIPTICITY = 0.3       # ... this elongated is a particle's track
-_TRACK_EXCESS = 0.35           # a spot this much more elongated than the frame's PSF ...
-_SHARP_WIDTH_SPREADS = 4.0     # narrower than the frame's stars by this many spreads: sharp
-_STAR_WIDTH_SNR = 30.0         # star-like spots this significant set the frame's star width
-_SATURATED_TRACK_EXCESS = 0.2  # ... or, saturated, this much, is a particle's track
-_CLIPPED_AREA = 0.6           # a saturated spot's flux/peak under this x the PSF's is sharp
 _CLIP_SIGMAS = 4.0             # full scale this many pixel noises above the background
-_WIDTH_SPREADS = 4.0           # below sharp_min_snr: narrower than a star by this many spreads,
-_MEASURED_WIDTH_SPREADS = 3.0  # ... or this many when the frame's stars measured its PSF
-_REMNANT_WIDTH = 0.85          # a spot this narrow and ...
-_REMNANT_ROUGH = 3.0           # ... this rough (x a star's of its flux) is a track's remnant
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
 _SHARPEST_RING = 0.5 * psf_ring(SIGMA_MIN_PX)
@@ -223,8 +210,7 @@ _BINNED_SNR = 4.0              # too few bright peaks: 4x4 bins this significant
 _LONE_STARS = 3                # ... or, this many, bound it for the impulses
 _BOUND_AGREE = math.log(1.15)  # ... by the sharpest within 15 % of their PSF
 _CONTRADICT_SE = 3.0           # ... and their PSF replaces an earlier frame's this many
-                               # standard errors and _STAR_WIDTH away from it
-_ELONGATION_SNR = 20.0         # spots this significant tell a trailed frame
+                               # standard errors and STAR_WIDTH away from it
 _SKY_RING_SIGMAS = 3.5         # a candidate's surroundings: from this many PSF sigmas ...
 _SKY_RING_WIDTH = 2            # ... outward by this many pixels
 _TEXTURE_NOISE = 1.6           # a tile this much noisier than the smooth sky is textured,
@@ -300,9 +286,9 @@ def _contradicts(few: PsfEstimate, carried: PsfEstimate) -> bool:
     false detections), while a particle's charge is never wider than the optics."""
     error = math.hypot(few.sigma_error_px, carried.sigma_error_px
                        if math.isfinite(carried.sigma_error_px) else 0.0)
-    return (math.log(few.sigma_px / carried.sigma_px) > _STAR_WIDTH
+    return (math.log(few.sigma_px / carried.sigma_px) > STAR_WIDTH
             and few.sigma_px - carried.sigma_px > _CONTRADICT_SE * error
-            and few.ellipticity < _STAR_ELLIPTICITY)   # a slew's trails are no PSF
+            and few.ellipticity < STAR_ELLIPTICITY)   # a slew's trails are no PSF
 
 
 def _reflected_noise_gain(kernel: np.ndarray, rows: int,
@@ -1305,62 +1291,22 @@ class DefaultDetector:
         saturated = v["raw_peak"] >= self.saturation
         clipped = saturated & light
         known = shot_noise_snr(v["weighted"], v["snr"])
-        judged = ((known >= self.cfg.sharp_min_snr) | clipped) & (self.speckle_fit is None)
-        # Second moment across the spot's narrowest axis: a PSF's is half its size,
-        # and a star streaked by motion keeps it, while a cosmic-ray hit or track
-        # is a pixel or so wide. Moments of no positive spot (what impulse
-        # rejection leaves of a track) count as narrow.
-        narrowest = 0.5 * v["size"] * (1.0 - v["ellipticity"])
-        spot = (v["weighted"] > 0) & (v["size"] > 0) & (v["ellipticity"] <= 1.0)
-        width = narrowest / (0.5 * self.expected_size)     # 1 for a star of this PSF
-        star_like = judged & spot & (np.abs(np.log(np.maximum(width, 1e-6))) < _STAR_WIDTH) & (
-            v["ellipticity"] < _STAR_ELLIPTICITY)
-        rougher = self._rougher_than_a_star(v, noise, star_like)
-        # a line narrower than the PSF (a track; a trailed star keeps the PSF's width), or
-        # a narrow spot rough at the pixel scale (a track's remnant)
-        track = ((width < _TRACK_WIDTH) & (v["ellipticity"] > _TRACK_ELLIPTICITY)) | (
-            (width < _REMNANT_WIDTH) & rougher(_REMNANT_ROUGH))
-        if self.psf.stars:
-            # against a PSF measured on this frame: a spot far more elongated than its
-            # stars is a particle's track, whatever its width (a charge cloud diffused
-            # over two pixels is as wide as a sharp PSF), a saturated one the more so (a
-            # saturated star's clipped top is as round as its PSF)
-            excess = v["ellipticity"] - self.psf.ellipticity
-            track |= (excess > _TRACK_EXCESS) | (saturated & (excess > _SATURATED_TRACK_EXCESS))
-            # a spot narrower than the frame's stars across their narrowest axis (a
-            # trailed frame's stars are narrow across the trail) by more than its width's
-            # noise, the lens's field and its pixel phase allow: a particle's charge
-            # diffused over a pixel or two, as wide as a sharp PSF (0.45 px against
-            # 0.6-0.8) but not as the frame's own (tracker.detect.star_width)
-            track |= ~saturated & sharper_than_stars(
-                width, known, self._star_width(v, star_like, saturated), self.phase_low,
-                _SHARP_WIDTH_SPREADS)
-        # clipping only widens a star (its flux over its clipped peak grows), so a
-        # saturated spot holding less light than the PSF's area times its clipped peak
-        # is sharper than the optics: a particle's charge
-        track |= clipped & (v["flux"] < _CLIPPED_AREA * 2.0 * math.pi * self.expected_size
-                              * v["peak"])
-        narrow = ~spot | (width < self.cfg.sharp_size_ratio) | track
-        sharp = judged & (narrow | rougher(self.cfg.rough_ratio))
-        # Fainter, a spot's width is known to about sqrt(2) / SNR of a star's (the spread
-        # of a second moment under the matched Gaussian weight, from the weighted noise,
-        # whatever the spot's own width): one narrower than ``sharp_size_ratio``, and
-        # than a star by more than _WIDTH_SPREADS of that spread, is a hot pixel or a
-        # particle's hit the impulse stage left (its noisy 3x3 median or neighbours
-        # made it look like a star's light). Against a PSF this frame's stars measured
-        # a star's width is known, and 3 spreads suffice (a faint star is lost 1 time
-        # in 700); against one from elsewhere the frame's stars may be sharper than it
-        if self.speckle_fit is None:
-            sharp |= spot & (width < self.cfg.sharp_size_ratio) & (
-                (1.0 - width) * known > math.sqrt(2.0) * (
-                    _MEASURED_WIDTH_SPREADS if self.psf.stars else _WIDTH_SPREADS))
+        multiplicative = self.speckle_fit is not None
+        judged = ((known >= self.cfg.sharp_min_snr) | clipped) & (not multiplicative)
+        sharp = sharp_spots(v, noise, known, judged, saturated, clipped, self.cfg, self.psf,
+                            self.expected_size, self.phase_low, self.star_roughness,
+                            multiplicative)
+        if not multiplicative:
             # fainter than the shape tests judge: a hot pixel or a particle's charge the
             # impulse stage spared is a point on its 3 x 3, beyond a star's noise
             sharp |= self._point_like(cand, v, noise, level, ~(judged | saturated | sharp))
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
-        broad, body = self._broad(v, sharp)
+        if multiplicative:   # a spot's peak is one speckle: its flux/peak says nothing
+            broad = body = np.zeros(n, bool)
+        else:
+            broad, body = broad_spots(v, sharp, self.saturation, self.cfg)
         embedded = self._embedded(n, cand, v) & ~sharp
         # a broad maximum with a body on most sides is part of it (a ghost's rim); a star
         # merely wider than the frame's PSF (a corner of a lens out of focus) has its own
@@ -1432,72 +1378,6 @@ class DefaultDetector:
             out[part] = z > Z_STAR_LOSS
         return out
 
-    def _star_width(self, v: dict, star_like: np.ndarray, saturated: np.ndarray) -> float:
-        """The width of the frame's stars (tracker.detect.star_width's convention): the
-        median over its unsaturated star-like spots at SNR >= ``_STAR_WIDTH_SNR``, or,
-        for fewer than five, its measured PSF's across its narrowest axis."""
-        bright = star_like & ~saturated & (v["snr"] >= _STAR_WIDTH_SNR)
-        if np.count_nonzero(bright) >= 5:
-            narrowest = 0.5 * v["size"][bright] * (1.0 - v["ellipticity"][bright])
-            return float(median(narrowest)) / (0.5 * self.expected_size)
-        return 1.0 - self.psf.ellipticity
-
-    def _rougher_than_a_star(self, v: dict, noise: np.ndarray, star_like: np.ndarray):
-        """A test of the spots' pixel-scale roughness (tracker.detect.windowed) against a
-        star's of the same flux on the same noise (tracker.detect.roughness).
-
-        ``rougher(k)`` is true of a spot rougher than k times what such a star
-        reads, and by more than ``_ROUGH_SPREADS`` of its noise's spread (a
-        faint star's roughness is mostly its own shot noise's and the
-        background's, and spreads by a third of itself at SNR 35). Both are
-        scaled by the median over the frame's bright spots that look like its
-        stars (``star_like``: width within 25 % of the PSF's, round) of their
-        roughness over a star's, if above one: noise that scales with the
-        light (speckle, a fraction of a photon per pixel) or optics sharper
-        at the core than a Gaussian roughen every star alike, and a star is
-        not rejected for it, while cosmic-ray clusters, narrower or
-        elongated, do not set the scale.
-        """
-        model = self.star_roughness
-        flux = v["flux"]
-        expected = model.expected(flux)
-        margin = expected + _ROUGH_SPREADS * model.spread(flux, noise)
-        bright = star_like & (v["snr"] >= _ROUGH_REFERENCE_SNR)
-        scale = 1.0
-        if np.count_nonzero(bright) >= 5:
-            scale = max(scale, median(v["rough"][bright] / expected[bright]))
-        rough = v["rough"] / scale
-
-        def rougher(k: float) -> np.ndarray:
-            return (rough > k * expected) & (rough > margin)
-
-        return rougher
-
-    def _broad(self, v: dict, sharp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(EXTENDED, body): flux/peak above ``extended_ratio`` / ``body_ratio`` x the median.
-
-        A point source's flux/peak (its effective area) is fixed by the PSF
-        (2 pi sigma^2 for a Gaussian) whatever its brightness; a nebula,
-        comet or lit branch spreads its flux wider (EXTENDED, reported), and
-        a maximum on a ghost's disc, a planet or lit ground is as wide as the
-        window itself (a body: masked). The frame's own median is the
-        reference, so an unknown or field-varying PSF needs no configuration.
-        Saturated spots (flat tops) and rejected sharp ones are neither
-        judged nor part of the median; fewer than five such sources give no
-        reference. Under multiplicative noise a spot's peak is one speckle, and a
-        faint star's is cleared with the impulses: its flux/peak says nothing of
-        its width, and nothing is judged.
-        """
-        n = len(sharp)
-        unsat = (v["raw_peak"] < self.saturation) & ~sharp
-        none = np.zeros(n, bool)
-        if np.count_nonzero(unsat) < 5 or self.speckle_fit is not None:
-            return none, none
-        area = v["flux"] / np.maximum(v["peak"], 1e-12)
-        reference = median(area[unsat])
-        return (unsat & (area > self.cfg.extended_ratio * reference),
-                unsat & (area > self.cfg.body_ratio * reference))
-
     def _embedded(self, n: int, cand: np.ndarray, v: dict) -> np.ndarray:
         """Candidates with fewer than ``min_sky_sectors`` sky sectors around them
         (tracker.detect.surroundings)."""
@@ -1524,7 +1404,8 @@ class DefaultDetector:
                         self.cfg.min_sky_sectors)
         # a thin line of light (a crescent, a ghost's ring) has sky across it, not along
         # it; a trailed frame's stars have their own light along the trail
-        line = max(self.psf.ellipticity, self._common_elongation(n, v)) < _LINE_MAX_ELLIPTICITY
+        trail = common_elongation(v, n, self.saturation, self.peaks.blended)
+        line = max(self.psf.ellipticity, trail) < _LINE_MAX_ELLIPTICITY
         embedded = (sectors < need) | (line & across_a_line(self.surroundings.light[:n],
                                                              self.surroundings.sky[:n]))
         # a saturated star's wings fall away from its centroid on every side (a body on
@@ -1560,23 +1441,6 @@ class DefaultDetector:
         self.textured |= self.level >= _SATURATED_TILE * self.saturation   # flat, but ground
         cv2.dilate(self.textured.view(np.uint8), _TILE_NEIGHBOURS,
                    dst=self.near_texture.view(np.uint8))
-
-    def _common_elongation(self, n: int, v: dict) -> float:
-        """How elongated the frame's significant spots are in one direction: the length of
-        their mean ellipticity vector ((Mxx - Myy, 2 Mxy) / (Mxx + Myy) of the windowed
-        moments), over unsaturated, unblended candidates at SNR >= 20; 0 for fewer than 5.
-
-        A slewing camera trails every star alike (the PSF meter, which takes round
-        stars, does not see it); particle tracks and a crescent's pieces point every
-        way, and round stars not at all.
-        """
-        use = ((v["snr"][:n] >= _ELONGATION_SNR) & (v["raw_peak"][:n] < self.saturation)
-               & ~self.peaks.blended[:n])
-        if np.count_nonzero(use) < 5:
-            return 0.0
-        mxx, myy, mxy = v["mxx"][:n][use], v["myy"][:n][use], v["mxy"][:n][use]
-        size = np.maximum(mxx + myy, 1e-12)
-        return float(np.hypot(np.mean((mxx - myy) / size), np.mean(2.0 * mxy / size)))
 
     def _one_plateau(self, n: int, cand: np.ndarray, v: dict) -> np.ndarray:
         """Saturated candidates that share their clipped plateau with another: (n,) bool.
