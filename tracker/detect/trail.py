@@ -55,9 +55,8 @@ def _runs(band: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The flat indices of ``band``'s (n, side, side) true pixels, each star's first one among
     them and their count per star (C order: star by star; a band holds the pixels next to
     the point it is centred on, so no run is empty)."""
-    pick = np.flatnonzero(band)
-    runs = pick.searchsorted(np.arange(0, band.size, band[0].size))
-    return pick, runs, np.diff(runs, append=len(pick))
+    count = band.sum(axis=(1, 2))
+    return band.ravel().nonzero()[0], count.cumsum() - count, count
 
 
 def normal_cdf(z: np.ndarray) -> np.ndarray:
@@ -152,13 +151,14 @@ class TrailFit:
         a = (dx * ux)[:, None, :] + (dy * uy)[:, :, None]        # (n, side, side)
         b = (dy * ux)[:, :, None] - (dx * uy)[:, None, :]
         # the first moment along of the light within the search band (the detection may sit
-        # anywhere on the trail's flat top)
-        pick, runs, _ = _runs((np.abs(a) <= (along_half / s)[:, None, None])
-                              & (np.abs(b) <= (3.0 * s + 1.0) / s))
-        light = np.maximum(box.reshape(-1)[pick] - sky.repeat(np.diff(runs, append=len(pick))),
-                           0.0)
-        moments = np.add.reduceat(np.array((light * a.reshape(-1)[pick], light)), runs, axis=1)
-        first = moments[0] / np.maximum(moments[1], 1e-30)
+        # anywhere on the trail's flat top), summed over the whole box with the light
+        # outside the band zeroed (a box holds a few hundred pixels: fewer numpy calls
+        # than picking the band's)
+        light = box - sky[:, None, None]
+        np.maximum(light, 0.0, out=light)
+        light *= (np.abs(a) <= (along_half / s)[:, None, None]) & (np.abs(b) <= (3.0 * s + 1.0)
+                                                                  / s)
+        first = (light * a).sum(axis=(1, 2)) / np.maximum(light.sum(axis=(1, 2)), 1e-30)
         # the fit's band: the pixels the model reaches from there, L / 2 + 3 sigma along
         # and 3 sigma across (beyond, a pixel holds under 1.1 % of the peak: noise, next to
         # no information)
