@@ -28,6 +28,7 @@ from tracker.identify.predict import (
     CENTROID_SPREAD_PX,
     TrackPrediction,
     informative,
+    pinhole_travel,
     pixel_jacobian,
 )
 from tracker.identify.windows import WindowPlanner
@@ -58,6 +59,20 @@ def test_jacobian_matches_a_small_rotation():
     theta = np.array([2e-5, -3e-5, 4e-5])
     moved = cam.vector_to_pixel(v @ matrix_from_rotation_vector(theta).T)
     np.testing.assert_allclose(moved - xy, pixel_jacobian(cam, v) @ theta, atol=2e-3)
+
+
+def test_pinhole_travel_is_a_small_rotations_motion():
+    """pinhole_travel (the smear's closed form) moves pixels as a small turn of a pinhole
+    camera does, and agrees with J theta to rounding."""
+    cam = dataclasses.replace(camera(16.0), k1=0.0, k2=0.0)
+    rng = np.random.default_rng(2)
+    xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], size=(30, 2))
+    v = cam.pixel_to_vector(xy)
+    theta = np.array([3e-5, 2e-5, -5e-5])
+    moved = cam.vector_to_pixel(v @ matrix_from_rotation_vector(theta).T)
+    travel = pinhole_travel(cam, xy, theta)
+    np.testing.assert_allclose(travel, moved - xy, atol=2e-3)
+    np.testing.assert_allclose(travel, pixel_jacobian(cam, v) @ theta, rtol=0, atol=1e-12)
 
 
 def test_predictions_fall_within_their_uncertainty():

@@ -99,7 +99,7 @@ from tracker.identify.predict import (
     TrackPrediction,
     centroid_variance,
     informative,
-    pixel_jacobian,
+    pinhole_travel,
     spread_and_smear,
 )
 from tracker.identify.verify import Projector, false_match_probability, match_nearest
@@ -516,12 +516,8 @@ class Solver:
         """
         if not self._can_track(t_ns) or self._rate is None:
             return None
-        camera = self.lens_camera()
-        xy = np.asarray(xy, dtype=np.float64)
-        pinhole = np.ones((len(xy), 3))
-        pinhole[:, 0] = (xy[:, 0] - camera.cx) / camera.f_px
-        pinhole[:, 1] = (xy[:, 1] - camera.cy) / camera.f_px
-        return pixel_jacobian(camera, pinhole) @ (self._rate * exposure_s)
+        return pinhole_travel(self.lens_camera(), np.asarray(xy, dtype=np.float64),
+                              self._rate * exposure_s)
 
     def max_smear_px(self, t_ns: int, exposure_s: float) -> float | None:
         """An upper bound of :meth:`smear_px` over the whole frame, px (None without a rate).
@@ -537,7 +533,7 @@ class Solver:
         w = max(camera.cy + 0.5, camera.height - 0.5 - camera.cy) / camera.f_px
         norm = math.sqrt(2.0 * (u * w) ** 2 + (1.0 + u * u) ** 2 + (1.0 + w * w) ** 2
                          + u * u + w * w)
-        return camera.f_px * norm * float(np.linalg.norm(self._rate)) * exposure_s
+        return camera.f_px * norm * math.hypot(*self._rate.tolist()) * exposure_s
 
     def _can_track(self, t_ns: int) -> bool:
         if self._last_R is None or self._last_t is None:
