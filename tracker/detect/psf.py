@@ -37,9 +37,10 @@ Per frame (:class:`PsfMeter`):
    PSF, and beside such a sharp population 3 agreeing stars (or
    ``min_stars`` if fewer) suffice; if the wider ones do not agree, the
    frame has no measurement. With no wider spots beside it, at least
-   ``min_stars`` of that sharp mode must share one shape within what each
-   one's noise allows: an ellipticity vector within sqrt(0.15^2 +
-   (4 sigma_e)^2) of their median one, sigma_e = 2 / SNR per component
+   ``min_stars``, and most, of that sharp mode must share one shape (a
+   PSF's stars all do; of tracks pointing every way a few lie near their
+   median by chance) within what each one's noise allows: an ellipticity
+   vector within sqrt(0.15^2 + (4 sigma_e)^2) of their median one, sigma_e = 2 / SNR per component
    (Bernstein and Jarvis 2002), scaled by the pixel width taken off; else
    the frame has no measurement (if enough do, all the mode's spots count:
    an undersampled star's shape also depends on where in its pixel it
