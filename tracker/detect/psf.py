@@ -37,9 +37,10 @@ Per frame (:class:`PsfMeter`):
    PSF, and beside such a sharp population 3 agreeing stars (or
    ``min_stars`` if fewer) suffice; if the wider ones do not agree, the
    frame has no measurement. With no wider spots beside it, at least
-   ``min_stars`` of that sharp mode must share one shape within what each
-   one's noise allows: an ellipticity vector within sqrt(0.15^2 +
-   (4 sigma_e)^2) of their median one, sigma_e = 2 / SNR per component
+   ``min_stars``, and most, of that sharp mode must share one shape (a
+   PSF's stars all do; of tracks pointing every way a few lie near their
+   median by chance) within what each one's noise allows: an ellipticity
+   vector within sqrt(0.15^2 + (4 sigma_e)^2) of their median one, sigma_e = 2 / SNR per component
    (Bernstein and Jarvis 2002), scaled by the pixel width taken off; else
    the frame has no measurement (if enough do, all the mode's spots count:
    an undersampled star's shape also depends on where in its pixel it
@@ -458,11 +459,13 @@ def combine_stars(sigma, ellipticity, cxx, cyy, cxy, snr, min_stars: int) -> Psf
     agree = np.abs(log_s - best) <= _AGREE
     wider = log_s > best + _OPTICS_GAP
     charge = math.log(CHARGE_SIGMA_PX)
-    if (best < charge and np.count_nonzero(wider) < 2
-            and np.count_nonzero(_shared_shape(cxx, cyy, cxy, snr, agree) & agree) < min_stars):
-        # as sharp as a particle's charge, no wider spots, and too few of them share one
-        # shape within their noise: short tracks pointing every way, not a PSF's stars
-        return None
+    if best < charge and np.count_nonzero(wider) < 2:
+        shared = np.count_nonzero(_shared_shape(cxx, cyy, cxy, snr, agree) & agree)
+        if shared < min_stars or 2 * shared <= np.count_nonzero(agree):
+            # as sharp as a particle's charge, no wider spots, and too few of them, or
+            # not most of them, share one shape within their noise (a PSF's stars all
+            # do): short tracks pointing every way, a few near their median by chance
+            return None
     if best < charge and np.count_nonzero(wider) >= 2:
         # spots far wider than the mode: the mode is particles' charge, which the optics
         # never blurred, and the frame's stars are the wider spots (or, if they do not
