@@ -116,10 +116,12 @@ not need them: the frame's copy of step 1 in two slabs; the median of step 3
 while step 2 works out the background and the impulse limit (the median
 needs only the frame), the background's interpolation to full size on the
 other worker beside the impulse limit's and step 3's first cut (the pixels
-far from their median, which needs no background); and the float copy of
+far from their median, which needs no background); the float copy of
 step 5, with the background read at the filtered statistics' samples, while
 step 4 measures the PSF (the impulses' second pass then rewrites the pixels
-it changes in both copies).
+it changes in both copies). The tiles' samples of step 5's filtered statistics
+are read and sorted in slabs, and so is the frame binned 4 x 4 where step 4
+needs it (step 2's samples are not: there the median holds a worker).
 
 ``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
 found in steps 3-4 plus sharp spots from step 7), sharp_spots, masked,
@@ -395,7 +397,7 @@ class DefaultDetector:
         self.psf_cand = np.zeros(_PSF_STARS, np.intp)
         self.psf_noise = np.zeros(_PSF_STARS, np.float32)
         self.psf_meter = PsfMeter(layout.stride, psf_radius, _PSF_STARS, cfg.psf_min_stars)
-        self.binned = BinnedPeaks(layout, _PSF_PEAKS)
+        self.binned = BinnedPeaks(layout, _PSF_PEAKS, slabs=self.filter_slabs)
         self.psf_tracker = PsfTracker(cfg.psf_sigma_px, cfg.psf_memory_frames)
         self.measure_psf = cfg.psf_measure   # a caller given the PSF may skip step 4's meter
         self.psf = self.psf_tracker.current
@@ -744,7 +746,8 @@ class DefaultDetector:
         self.filter_slabs.run(self._matched_filter, self.work_float, self.filt)
         grid.stats(self.filt_pad, self.residual, self.noise_f,
                    QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=True,
-                   dark_side=self.dark_side if self.dark_side.any() else None)
+                   dark_side=self.dark_side if self.dark_side.any() else None,
+                   slabs=self.filter_slabs)
         np.subtract(self.level, self.sky_model[0], out=self.float_grid)
         np.less(self.float_grid, _DARK_SIDE_SIGMAS * math.sqrt(self.sky_model[1]),
                 out=self.sky_edge)
