@@ -440,7 +440,7 @@ class DefaultDetector:
                          "left_out": 0}
         self._sigma_step = None
         self.steps = SigmaSteps(_sigma_step_of(SIGMA_MIN_PX), _sigma_step_of(SIGMA_MAX_PX),
-                                5 + len(fields(StarRoughness)),
+                                6 + len(fields(StarRoughness)),
                                 _kernel_half(SIGMA_MAX_PX))
         self.steps.fill(self._step_constants)
         self._configure(cfg.psf_sigma_px)
@@ -455,7 +455,7 @@ class DefaultDetector:
         frame leaves the kernels, windows and their buffers as they are.
         The constants that take some arithmetic (thresholds, contrasts, the
         roughness of a star and its spread, a star's lowest width over its pixel
-        phase, the filter's gain at the borders) come
+        phase, the weighted flux's capture, the filter's gain at the borders) come
         from ``self.steps``, computed once per step.
         """
         position = math.log(sigma_px) / _SIGMA_STEP
@@ -473,7 +473,6 @@ class DefaultDetector:
         kernel = self._gaussian_kernel(sigma_px)
         self.peaks.configure(blend)
         self.centroider.configure(self.radius, sigma)
-        self.capture = weighted_capture(sigma_px, sigma, self.radius)
         self.fit.configure(self.radius, sigma_px)
         if self.cfg.centroid_noise == "multiplicative":
             self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
@@ -483,8 +482,8 @@ class DefaultDetector:
         self.psf_filter = (kernel, scalars[0], scalars[1], self.edge_gain)
         self._filter_key = None
         self._set_filter(False)
-        self.impulse_contrast, self.impulse_ring, self.phase_low = scalars[2:5]
-        self.star_roughness = StarRoughness.from_values(scalars[5:])
+        self.impulse_contrast, self.impulse_ring, self.phase_low, self.capture = scalars[2:6]
+        self.star_roughness = StarRoughness.from_values(scalars[6:])
 
     @staticmethod
     def _gaussian_kernel(sigma_px: float) -> np.ndarray:
@@ -536,8 +535,9 @@ class DefaultDetector:
     def _step_constants(self, step: int) -> tuple[tuple, tuple[np.ndarray, np.ndarray]]:
         """The PSF's constants for ``_configure`` at sigma step ``step``: (filter gain,
         Gaussian peak threshold, impulse contrast, impulse ring, the lowest width over
-        the pixel phase (tracker.detect.star_width), then the StarRoughness values of
-        its centroid window), (edge gains)."""
+        the pixel phase (tracker.detect.star_width), the weighted flux's capture of the
+        PSF (tracker.detect.weighted_flux), then the StarRoughness values of its
+        centroid window), (edge gains)."""
         sigma_px = math.exp(step * _SIGMA_STEP)
         kernel = self._gaussian_kernel(sigma_px)
         # filtered / pixel noise for white noise: sqrt of the 2-D kernel's sum of squares
@@ -546,8 +546,10 @@ class DefaultDetector:
             self.cfg.false_alarms_per_frame, self.layout.rows * self.layout.cols, kernel)
         impulse_contrast, impulse_ring = _impulse_cut(sigma_px)
         roughness = StarRoughness.of(_window_radius(sigma_px), sigma_px)
+        capture = weighted_capture(sigma_px, effective_sigma(sigma_px),
+                                   _window_radius(sigma_px))
         return ((filter_gain, peak_threshold, impulse_contrast, impulse_ring,
-                 lowest_phase_width(sigma_px), *roughness.values()),
+                 lowest_phase_width(sigma_px), capture, *roughness.values()),
                 _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols))
 
     def _noise_f_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
