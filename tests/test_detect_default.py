@@ -11,6 +11,7 @@ import pytest
 from tracker.bench.detect_data import bound_variance
 from tracker.config import DetectConfig, SimConfig
 from tracker.detect import StarFlag, make_detector
+from tracker.detect import default as default_module
 from tracker.detect.crb import centroid_crb
 from tracker.detect.default import effective_sigma
 from tracker.sim import render_points
@@ -388,11 +389,12 @@ def test_multiplicative_noise_finds_faint_speckled_stars_on_a_black_sky():
     assert len(det.stars) == len(xs), len(det.stars)
 
 
-def test_psf_constants_kept_per_step_equal_those_computed_afresh():
+def test_psf_constants_kept_per_step_equal_those_computed_afresh(monkeypatch):
     """Every PSF step's constants are computed at construction (tracker.detect.sigma_steps)
     and none on a frame: a PSF that moves from step to step reads the table, whose
-    thresholds, contrasts, lowest phase width, roughness and border gains are those
-    computed afresh for the step, and the same as a detector started at that PSF uses."""
+    thresholds, contrasts, lowest phase width, weighted flux's capture, roughness and
+    border gains are those computed afresh for the step, and the same as a detector
+    started at that PSF uses."""
     shape = (200, 240)
     moving = make_detector(CFG, shape, 10)
     assert moving.steps.known.all()
@@ -401,13 +403,19 @@ def test_psf_constants_kept_per_step_equal_those_computed_afresh():
     def computed_on_a_frame(step):
         raise AssertionError(f"step {step} computed after construction")
 
+    def capture_on_a_frame(*args):
+        raise AssertionError("weighted capture computed after construction")
+
     moving._step_constants = computed_on_a_frame
-    names = ("filter_gain", "peak_threshold", "impulse_contrast", "impulse_ring", "phase_low")
+    names = ("filter_gain", "peak_threshold", "impulse_contrast", "impulse_ring", "phase_low",
+             "capture")
     for sigma in (0.7, 2.9, 1.6, 0.7, 0.45, 3.5):
-        moving._configure(sigma)
+        with monkeypatch.context() as patch:
+            patch.setattr(default_module, "weighted_capture", capture_on_a_frame)
+            moving._configure(sigma)
         scalars, gains = afresh(moving._sigma_step)
-        assert [getattr(moving, name) for name in names] == list(scalars[:5])
-        assert moving.star_roughness.values() == tuple(scalars[5:])
+        assert [getattr(moving, name) for name in names] == list(scalars[:6])
+        assert moving.star_roughness.values() == tuple(scalars[6:])
         fresh = make_detector(dataclasses.replace(CFG, psf_sigma_px=sigma), shape, 10)
         assert moving.psf_sigma_used == fresh.psf_sigma_used
         for name in (*names, "star_roughness"):

@@ -10,7 +10,10 @@ import pytest
 
 from tracker.config import DetectConfig, SimConfig
 from tracker.detect import make_detector
+from tracker.detect.background import BackgroundGrid
+from tracker.detect.binned import BinnedPeaks
 from tracker.detect.frame_input import FrameInput
+from tracker.detect.layout import PaddedLayout
 from tracker.detect.slabs import SlabRunner
 from tracker.sim import render_points
 
@@ -60,6 +63,80 @@ def test_slab_errors_reach_the_caller():
 
     with pytest.raises(ValueError, match="slab failed"):
         runner.run(broken, np.zeros((64, 8), np.float32), np.zeros((64, 8), np.float32))
+
+
+def _wide_psf_frame(seed):
+    """Faint stars of a 2.2 px PSF (peak SNR under 5): the PSF measured on 4 x 4 bins."""
+    rng = np.random.default_rng(seed)
+    shape = (500, 500)
+    xs, ys = rng.uniform(30, 470, 40), rng.uniform(30, 470, 40)
+    clean = dataclasses.replace(SimConfig(), hot_pixel_fraction=0.0, cosmic_ray_rate_cm2_s=0.0)
+    return render_points(shape, xs, ys, np.full(40, 450.0), clean, rng,
+                         noise_model="realistic", psf_sigma_px=2.2).image
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_the_frame_binned_in_slabs_gives_the_candidates_of_one_call(threads):
+    """The 4 x 4 bins made in row slabs (each slab the blocks beginning in its rows, any
+    cut) are those of one call, and so are the candidates; a detector of two threads
+    measures a wide PSF on them as one of one thread does, star for star."""
+    image = _wide_psf_frame(9)
+    shape = image.shape
+    layout = PaddedLayout(shape, 4)
+    padded, inner = layout.buffer(np.uint16)
+    inner[:] = image
+    sky = float(np.median(image))
+    spread = float(np.median(np.abs(image - sky))) / 0.6745
+    level, noise = np.full((13, 13), sky, np.float32), np.full((13, 13), spread, np.float32)
+    finders = [BinnedPeaks(layout, 512),
+               BinnedPeaks(layout, 512, slabs=SlabRunner(shape[0], shape[1], 0, threads,
+                                                         np.uint16))]
+    counts = [f.find(padded, inner, level, noise, 4.0) for f in finders]
+    assert counts[0] == counts[1] >= 20
+    np.testing.assert_array_equal(finders[0].binned, finders[1].binned)
+    for name in ("start", "brightest"):
+        np.testing.assert_array_equal(getattr(finders[0], name), getattr(finders[1], name))
+    results = []
+    for n in (1, threads):
+        cfg = dataclasses.replace(DetectConfig(method="default"), threads=n)
+        result = make_detector(cfg, shape, 10).detect(image)
+        results.append((result.stars.copy(), result.psf_sigma_px, result.psf_stars))
+    assert results[0][1] == pytest.approx(2.2, rel=0.1) and results[0][2] >= 5
+    np.testing.assert_array_equal(results[0][0], results[1][0])
+    assert results[0][1:] == results[1][1:]
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_background_tiles_sampled_in_slabs_equal_one_call(threads):
+    """The tiles' samples read and sorted in row slabs: the same level, noise and sorted
+    samples as in one call, for an integer frame (its lattice and dither) and for a float
+    frame less the sampled background."""
+    rng = np.random.default_rng(threads)
+    shape = (300, 230)
+    layout = PaddedLayout(shape, 6)
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+    sky = 80.0 + 0.1 * xx + 0.05 * yy + rng.normal(0.0, 3.0, shape)
+    sky[rng.integers(0, 300, 40), rng.integers(0, 230, 40)] += 500.0   # stars and hits
+    frames = []
+    for dtype in (np.uint16, np.float32):
+        padded, inner = layout.buffer(dtype)
+        inner[:] = np.rint(sky) if dtype == np.uint16 else sky
+        frames.append(padded)
+    minus_pad, minus = layout.buffer(np.float32)
+    minus[:] = 80.0 + 0.1 * xx
+    runner = SlabRunner(shape[0], shape[1], 0, threads, np.float32)
+    assert runner.threads == threads
+    grid = BackgroundGrid(layout, 32, 4, 64)
+    for padded, minus_too in ((frames[0], False), (frames[1], True)):
+        out = []
+        for slabs in (None, runner):
+            level, noise = np.zeros(grid.grid_shape, np.float32), np.zeros(grid.grid_shape,
+                                                                           np.float32)
+            grid.sample_minus(minus_pad)
+            grid.stats(padded, level, noise, 0.3, upper=True, minus=minus_too, slabs=slabs)
+            out.append((level, noise, grid.samples.copy(), grid.rounded.copy()))
+        for one, slabbed in zip(*out, strict=True):
+            np.testing.assert_array_equal(one, slabbed)
 
 
 def test_uint16_input_clips_to_full_scale_and_rounds_floats():

@@ -35,6 +35,7 @@ import numpy as np
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.order import median
 from tracker.detect.sky_split import sky_class_size, sky_part
+from tracker.detect.slabs import SlabRunner
 from tracker.normal import erf
 
 __all__ = ["BackgroundGrid", "QUANTISATION_NOISE_ADU"]
@@ -160,7 +161,8 @@ class BackgroundGrid:
     def stats(self, padded: np.ndarray, level: np.ndarray, noise: np.ndarray,
               floor: float, upper: bool = False, minus: bool = False,
               dark_side: np.ndarray | None = None,
-              sky_split: np.ndarray | None = None, resample: bool = True) -> None:
+              sky_split: np.ndarray | None = None, resample: bool = True,
+              slabs: SlabRunner | None = None) -> None:
         """Per-tile level and noise (grid shape, units of ``padded``) into the given arrays.
 
         ``padded`` is float32 or uint16. With ``minus`` the statistics are
@@ -188,11 +190,15 @@ class BackgroundGrid:
         ``resample`` false: ``padded`` is the image of the last call, which was
         made without ``minus`` (a second call for its ``dark_side``): its
         sorted samples are taken as they are, not read and sorted again.
+
+        ``slabs`` (tracker.detect.slabs), if given, reads and sorts the tiles'
+        samples in its row slabs (each slab the rows of tiles its frame rows
+        begin; the same values as one call), for a caller whose workers are idle.
         """
         m = self.samples.shape[-1]
         lattice = padded.dtype == self.int_samples.dtype and not minus
         if resample:
-            self._sample(padded, minus, lattice)
+            self._sample(padded, minus, lattice, slabs)
         # the level from the integers as read (in the same order: the dither is under
         # half a step), not the histogram's (a tile of zeros with a few ones would
         # read 0.02)
@@ -253,23 +259,36 @@ class BackgroundGrid:
             np.maximum(noise, self.smoothed, out=noise)
         np.maximum(noise, floor, out=noise)
 
-    def _sample(self, padded: np.ndarray, minus: bool, lattice: bool) -> None:
+    def _sample(self, padded: np.ndarray, minus: bool, lattice: bool,
+                slabs: SlabRunner | None) -> None:
         """Read ``padded`` at the tiles' lattice into ``samples``, sorted per tile (less
         the last :meth:`sample_minus` image with ``minus``; an integer lattice read
-        plus the dither, its integers also in ``rounded``)."""
+        plus the dither, its integers also in ``rounded``), in ``slabs`` if given."""
+        if slabs is None:
+            self._sample_tiles(padded, minus, lattice, 0, self.grid_shape[0])
+            return
+        ny, rows = self.grid_shape[0], self.layout.rows
+        slabs.rows(lambda a, b: self._sample_tiles(padded, minus, lattice,
+                                                        a * ny // rows, b * ny // rows))
+
+    def _sample_tiles(self, padded: np.ndarray, minus: bool, lattice: bool, first: int,
+                      end: int) -> None:
+        """:meth:`_sample` on the rows of tiles [first, end)."""
+        tiles = np.s_[first:end]
+        samples, ints = self.samples[tiles], self.int_samples[tiles]
         if padded.dtype == self.int_samples.dtype:
-            np.take(padded.ravel(), self.index, out=self.int_samples, mode="clip")
+            np.take(padded.ravel(), self.index[tiles], out=ints, mode="clip")
             if lattice:    # the integers (exact in float32) plus the dither, in one pass
-                np.add(self.int_samples, self.dither, out=self.samples)
+                np.add(ints, self.dither[tiles], out=samples)
             else:
-                np.copyto(self.samples, self.int_samples)
+                np.copyto(samples, ints)
         else:
-            np.take(padded.ravel(), self.index, out=self.samples, mode="clip")
+            np.take(padded.ravel(), self.index[tiles], out=samples, mode="clip")
         if minus:
-            np.subtract(self.samples, self.minus_samples, out=self.samples)
-        self.samples.sort(axis=-1)
+            np.subtract(samples, self.minus_samples[tiles], out=samples)
+        samples.sort(axis=-1)
         if lattice:
-            np.rint(self.samples, out=self.rounded)
+            np.rint(samples, out=self.rounded[tiles])
 
     def sample_minus(self, minus: np.ndarray) -> None:
         """Read ``minus`` (float32, padded like the frames) at the sampled pixels, for

@@ -21,7 +21,9 @@ that tell a hot pixel from a star.
 The background and pixel noise are the background stage's grids
 (tracker.detect.background), interpolated to the binned image; a bin's
 noise is the pixel noise over 4 (white noise) with the rounding of the
-binned integers (1/12 ADU^2) added. Every buffer is made at construction.
+binned integers (1/12 ADU^2) added. The binning runs in the row slabs of
+a tracker.detect.slabs runner if given (each slab the blocks that begin in
+its rows: the same means as one call). Every buffer is made at construction.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import cv2
 import numpy as np
 
 from tracker.detect.layout import PaddedLayout
+from tracker.detect.slabs import SlabRunner
 
 __all__ = ["BinnedPeaks", "BIN_PX"]
 
@@ -47,8 +50,10 @@ _ROUNDING_VARIANCE = 1.0 / 12.0   # ADU^2: the binned means are rounded to whole
 class BinnedPeaks:
     """Candidates of frames held in padded uint16 buffers of ``layout``; up to ``capacity``."""
 
-    def __init__(self, layout: PaddedLayout, capacity: int) -> None:
+    def __init__(self, layout: PaddedLayout, capacity: int,
+                 slabs: SlabRunner | None = None) -> None:
         self.layout = layout
+        self.slabs = slabs or SlabRunner(layout.rows, layout.cols, 0, 1, np.uint16)
         self.shape = (max(1, layout.rows // BIN_PX), max(1, layout.cols // BIN_PX))
         self.binned = np.zeros(self.shape, np.uint16)
         self.values = np.zeros(self.shape, np.float32)
@@ -66,6 +71,16 @@ class BinnedPeaks:
         dy, dx = np.mgrid[0:BIN_PX, 0:BIN_PX]
         self.block_offsets = (dy.ravel() * layout.stride + dx.ravel()).astype(np.intp)
 
+    def _bin(self, work: np.ndarray, first: int, end: int) -> None:
+        """The binned means (``binned``, and ``values`` in float32) of the blocks whose
+        first row lies in the frame's rows [first, end)."""
+        rows, cols = self.shape
+        lo, hi = -(-first // BIN_PX), min(-(-end // BIN_PX), rows)
+        if lo < hi:
+            cv2.resize(work[lo * BIN_PX:hi * BIN_PX, :cols * BIN_PX], (cols, hi - lo),
+                       dst=self.binned[lo:hi], interpolation=cv2.INTER_AREA)
+            np.copyto(self.values[lo:hi], self.binned[lo:hi])
+
     def find(self, work_pad: np.ndarray, work: np.ndarray, level: np.ndarray,
              noise: np.ndarray, min_snr: float) -> int:
         """Candidates of the frame in ``work`` (uint16, the interior view of ``work_pad``)
@@ -76,9 +91,7 @@ class BinnedPeaks:
         rows, cols = self.shape
         if work.shape[0] < BIN_PX or work.shape[1] < BIN_PX:
             return 0
-        cv2.resize(work[:rows * BIN_PX, :cols * BIN_PX], (cols, rows), dst=self.binned,
-                   interpolation=cv2.INTER_AREA)
-        np.copyto(self.values, self.binned)
+        self.slabs.rows(lambda first, end: self._bin(work, first, end))
         cv2.resize(level, (cols, rows), dst=self.level, interpolation=cv2.INTER_LINEAR)
         cv2.resize(noise, (cols, rows), dst=self.noise, interpolation=cv2.INTER_LINEAR)
         np.multiply(self.noise, self.noise, out=self.noise)

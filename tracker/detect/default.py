@@ -116,10 +116,12 @@ not need them: the frame's copy of step 1 in two slabs; the median of step 3
 while step 2 works out the background and the impulse limit (the median
 needs only the frame), the background's interpolation to full size on the
 other worker beside the impulse limit's and step 3's first cut (the pixels
-far from their median, which needs no background); and the float copy of
+far from their median, which needs no background); the float copy of
 step 5, with the background read at the filtered statistics' samples, while
 step 4 measures the PSF (the impulses' second pass then rewrites the pixels
-it changes in both copies).
+it changes in both copies). The tiles' samples of step 5's filtered statistics
+are read and sorted in slabs, and so is the frame binned 4 x 4 where step 4
+needs it (step 2's samples are not: there the median holds a worker).
 
 ``Detections.counters``: impulse_pixels, hot_pixels, cosmic_rays (tracks
 found in steps 3-4 plus sharp spots from step 7), sharp_spots, masked,
@@ -395,7 +397,7 @@ class DefaultDetector:
         self.psf_cand = np.zeros(_PSF_STARS, np.intp)
         self.psf_noise = np.zeros(_PSF_STARS, np.float32)
         self.psf_meter = PsfMeter(layout.stride, psf_radius, _PSF_STARS, cfg.psf_min_stars)
-        self.binned = BinnedPeaks(layout, _PSF_PEAKS)
+        self.binned = BinnedPeaks(layout, _PSF_PEAKS, slabs=self.filter_slabs)
         self.psf_tracker = PsfTracker(cfg.psf_sigma_px, cfg.psf_memory_frames)
         self.measure_psf = cfg.psf_measure   # a caller given the PSF may skip step 4's meter
         self.psf = self.psf_tracker.current
@@ -438,7 +440,7 @@ class DefaultDetector:
                          "left_out": 0}
         self._sigma_step = None
         self.steps = SigmaSteps(_sigma_step_of(SIGMA_MIN_PX), _sigma_step_of(SIGMA_MAX_PX),
-                                5 + len(fields(StarRoughness)),
+                                6 + len(fields(StarRoughness)),
                                 _kernel_half(SIGMA_MAX_PX))
         self.steps.fill(self._step_constants)
         self._configure(cfg.psf_sigma_px)
@@ -453,7 +455,7 @@ class DefaultDetector:
         frame leaves the kernels, windows and their buffers as they are.
         The constants that take some arithmetic (thresholds, contrasts, the
         roughness of a star and its spread, a star's lowest width over its pixel
-        phase, the filter's gain at the borders) come
+        phase, the weighted flux's capture, the filter's gain at the borders) come
         from ``self.steps``, computed once per step.
         """
         position = math.log(sigma_px) / _SIGMA_STEP
@@ -471,7 +473,6 @@ class DefaultDetector:
         kernel = self._gaussian_kernel(sigma_px)
         self.peaks.configure(blend)
         self.centroider.configure(self.radius, sigma)
-        self.capture = weighted_capture(sigma_px, sigma, self.radius)
         self.fit.configure(self.radius, sigma_px)
         if self.cfg.centroid_noise == "multiplicative":
             self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
@@ -481,8 +482,8 @@ class DefaultDetector:
         self.psf_filter = (kernel, scalars[0], scalars[1], self.edge_gain)
         self._filter_key = None
         self._set_filter(False)
-        self.impulse_contrast, self.impulse_ring, self.phase_low = scalars[2:5]
-        self.star_roughness = StarRoughness.from_values(scalars[5:])
+        self.impulse_contrast, self.impulse_ring, self.phase_low, self.capture = scalars[2:6]
+        self.star_roughness = StarRoughness.from_values(scalars[6:])
 
     @staticmethod
     def _gaussian_kernel(sigma_px: float) -> np.ndarray:
@@ -534,8 +535,9 @@ class DefaultDetector:
     def _step_constants(self, step: int) -> tuple[tuple, tuple[np.ndarray, np.ndarray]]:
         """The PSF's constants for ``_configure`` at sigma step ``step``: (filter gain,
         Gaussian peak threshold, impulse contrast, impulse ring, the lowest width over
-        the pixel phase (tracker.detect.star_width), then the StarRoughness values of
-        its centroid window), (edge gains)."""
+        the pixel phase (tracker.detect.star_width), the weighted flux's capture of the
+        PSF (tracker.detect.weighted_flux), then the StarRoughness values of its
+        centroid window), (edge gains)."""
         sigma_px = math.exp(step * _SIGMA_STEP)
         kernel = self._gaussian_kernel(sigma_px)
         # filtered / pixel noise for white noise: sqrt of the 2-D kernel's sum of squares
@@ -544,8 +546,10 @@ class DefaultDetector:
             self.cfg.false_alarms_per_frame, self.layout.rows * self.layout.cols, kernel)
         impulse_contrast, impulse_ring = _impulse_cut(sigma_px)
         roughness = StarRoughness.of(_window_radius(sigma_px), sigma_px)
+        capture = weighted_capture(sigma_px, effective_sigma(sigma_px),
+                                   _window_radius(sigma_px))
         return ((filter_gain, peak_threshold, impulse_contrast, impulse_ring,
-                 lowest_phase_width(sigma_px), *roughness.values()),
+                 lowest_phase_width(sigma_px), capture, *roughness.values()),
                 _reflected_noise_gain(kernel, self.layout.rows, self.layout.cols))
 
     def _noise_f_at(self, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -744,7 +748,8 @@ class DefaultDetector:
         self.filter_slabs.run(self._matched_filter, self.work_float, self.filt)
         grid.stats(self.filt_pad, self.residual, self.noise_f,
                    QUANTISATION_NOISE_ADU * self.filter_gain, upper=True, minus=True,
-                   dark_side=self.dark_side if self.dark_side.any() else None)
+                   dark_side=self.dark_side if self.dark_side.any() else None,
+                   slabs=self.filter_slabs)
         np.subtract(self.level, self.sky_model[0], out=self.float_grid)
         np.less(self.float_grid, _DARK_SIDE_SIGMAS * math.sqrt(self.sky_model[1]),
                 out=self.sky_edge)
