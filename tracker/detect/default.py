@@ -17,9 +17,10 @@ handled, sigma 3.5 px):
    tenth, or with a strip of sky beside saturated ground) take the sky's
    statistics from their sky pixels (tracker.detect.sky_split), and sky tiles
    beside a saturated one (lit ground, the Earth) keep their own level and
-   threshold rather than a blend with full scale. Where such an edge tile's
-   darker part is sky, the 3x3 median of its filtered statistics (step 5) is
-   taken over its sky neighbours only, not over the ground's tiles below it.
+   threshold rather than a blend with full scale. Where such a tile (across the
+   edge or beside a saturated one) is at the sky's level, the 3x3 median of its
+   filtered statistics (step 5) is taken over its sky neighbours only, not over
+   the ground's tiles below it.
 3. ``impulses``: hot pixels, cosmic-ray tracks and salt-and-pepper pixels,
    recognised by being much sharper than the sharpest PSF the detector
    handles (sigma 0.45 px), are replaced by their 3x3 median and counted
@@ -423,7 +424,7 @@ class DefaultDetector:
         self.dark_side = np.zeros(grid_shape, np.bool_)
         self.beside_body = np.zeros(grid_shape, np.bool_)   # sky tiles beside a body's
         self.near_body = np.zeros(grid_shape, np.bool_)     # bodies' tiles and their neighbours
-        self.sky_edge = np.zeros(grid_shape, np.bool_)   # edge tiles whose darker part is sky
+        self.sky_edge = np.zeros(grid_shape, np.bool_)   # tiles beside a body at the sky's level
         self.sky_split = np.zeros(grid_shape, np.bool_)  # edge tiles mostly of a body
         self.sky_pad = np.zeros((grid_shape[0] + 2, grid_shape[1] + 2), np.float32)
         self.sky_pad_offsets = (np.arange(-1, 2)[:, None] * self.sky_pad.shape[1]
@@ -753,7 +754,7 @@ class DefaultDetector:
         np.subtract(self.level, self.sky_model[0], out=self.float_grid)
         np.less(self.float_grid, _DARK_SIDE_SIGMAS * math.sqrt(self.sky_model[1]),
                 out=self.sky_edge)
-        self.sky_edge &= self.dark_side
+        self.sky_edge &= self.beside_body
         if self.sky_edge.any():
             self._sky_side_median(((grid.level_raw, self.residual), (grid.raw, self.noise_f)))
         self._tail_threshold()
@@ -1103,10 +1104,10 @@ class DefaultDetector:
 
     def _sky_side_median(self, grids: tuple[tuple[np.ndarray, np.ndarray], ...]) -> None:
         """Each (raw, out) of ``grids`` (one value a tile, unsmoothed; the 3x3 median of
-        the grid stats): at the tiles across a body's edge whose darker part is sky
-        (``sky_edge``), ``out`` the median of ``raw`` over those of its 3x3 neighbours
-        that are sky too (beside a body or away from every body, not the body's own
-        tiles). The last pair is the noise:
+        the grid stats): at the tiles beside a body (``beside_body``: across its edge, or
+        beside a saturated tile) at the sky's level (``sky_edge``), ``out`` the median of
+        ``raw`` over those of its 3x3 neighbours that are sky too (beside a body or away
+        from every body, not the body's own tiles). The last pair is the noise:
         a tile whose own noise is over ``_SKY_SIDE_OWN`` times that median holds a
         sliver of the body or a bright star, and keeps the plain median in every grid.
 
@@ -1115,9 +1116,13 @@ class DefaultDetector:
         its interpolated background spreads by some 200 ADU where the sky's spreads
         by 0.5, and a row of such tiles below a sky tile, with one straddling the
         edge beside it, is the median's majority; the threshold there rose out of
-        reach of stars well above the horizon. Of an even count of sky neighbours
-        (common) the upper middle value is taken: with three or four of them the lower
-        one sets the threshold low often enough to let noise peaks through.
+        reach of stars well above the horizon. A sky tile beside a saturated one that
+        does not straddle its edge is no different: its own samples are sky, but the
+        ground's tiles below it and slivers of ground in its sky neighbours (hills too
+        small to mark their tiles as an edge) made five of its nine (lunar design seeds:
+        2 stars of 1288 more found, 4 false detections fewer). Of an even count of sky
+        neighbours (common) the upper middle value is taken: with three or four of them
+        the lower one sets the threshold low often enough to let noise peaks through.
         """
         pad = self.sky_pad
         where = np.flatnonzero(self.sky_edge)
