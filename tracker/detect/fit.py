@@ -169,7 +169,7 @@ class PixelGaussianFit:
 
     def run(self, m: int, signal: np.ndarray, raw: np.ndarray, x: np.ndarray, y: np.ndarray,
             noise: np.ndarray, saturation: float | np.ndarray, max_shift: float,
-            inside: np.ndarray | None = None) -> np.ndarray:
+            inside: np.ndarray | None = None, flux0: np.ndarray | None = None) -> np.ndarray:
         """Refine centres ``x``, ``y`` (m,) in place; returns the fitted fluxes (m,).
 
         ``signal`` (m, side^2): background-subtracted windows, ADU; ``raw``
@@ -181,15 +181,19 @@ class PixelGaussianFit:
         window's pixels beyond the frame's edge: they are left out like
         clipped ones, so a star cut by the edge is fitted on the light the
         frame holds and its centre may lie beyond the edge (up to
-        ``max_shift``). A star whose normal matrix is singular keeps its
-        centre.
+        ``max_shift``). ``flux0`` (m,): the fluxes to start from (None: each
+        window's sum), so that a run continues one before it. A star whose
+        normal matrix is singular keeps its centre.
         """
         v = self._views(m)
         side = self.side
         grid = (m, side, side)
         flux = self._flux[:m]
-        np.sum(signal, axis=1, out=flux)
-        np.maximum(flux, 1.0, out=flux)
+        if flux0 is None:
+            np.sum(signal, axis=1, out=flux)
+            np.maximum(flux, 1.0, out=flux)
+        else:
+            flux[:] = flux0
         usable = v["usable"]
         if np.ndim(saturation):
             saturation = saturation[:m, None, None]

@@ -420,11 +420,15 @@ class StampDetector:
         close = np.square(at_x[:, None] - at_x[None, :])
         close += np.square(at_y[:, None] - at_y[None, :])
         blended = (close <= blend * blend).sum(axis=1) > 1   # itself and another
-        whole = ~blended if inside is None else ~blended & inside.all(axis=1)
-        self._fit(whole.nonzero()[0], _FIT_STEPS, signal, raw, noise, None, x, y)
-        if inside is not None:
-            cut = (~blended & ~whole).nonzero()[0]
-            self._fit(cut, _EDGE_FIT_STEPS, signal, raw, noise, inside, x, y)
+        # every unblended star's first steps in one fit (a fit's cost is mostly its
+        # steps' numpy calls); those the edge cuts continue alone, from their fluxes
+        single = (~blended).nonzero()[0]
+        flux = self._fit(single, _FIT_STEPS, signal, raw, noise, inside, x, y)
+        if inside is not None and len(single):
+            cut = ~inside[single].all(axis=1)
+            if cut.any():
+                self._fit(single[cut], _EDGE_FIT_STEPS - _FIT_STEPS, signal, raw, noise,
+                          inside, x, y, flux[cut])
         pair = blended.nonzero()[0]
         if len(pair):
             x[pair], y[pair] = self._windowed(signal[pair].reshape(-1, side, side), x[pair],
@@ -491,17 +495,21 @@ class StampDetector:
 
     def _fit(self, which: np.ndarray, steps: int, signal: np.ndarray, raw: np.ndarray,
              noise: np.ndarray, inside: np.ndarray | None, x: np.ndarray,
-             y: np.ndarray) -> None:
+             y: np.ndarray, flux0: np.ndarray | None = None) -> np.ndarray:
         """The PSF's fit (``steps`` Gauss-Newton steps) to the stamps ``which`` of
         ``signal`` and ``raw`` (m, side^2), on their pixels ``inside`` the frame (None:
-        all); their centres ``x``, ``y`` (m,), px from the peak pixels, refined in place."""
+        all); their centres ``x``, ``y`` (m,), px from the peak pixels, refined in place,
+        from the fluxes ``flux0`` (None: the stamps' sums). Returns their fitted fluxes
+        (a copy)."""
         if len(which) == 0:
-            return
+            return np.zeros(0)
         fx, fy = x[which], y[which]
         self.fit.iterations = steps
-        self.fit.run(len(which), signal[which], raw[which], fx, fy, noise[which],
-                     self.saturation, _MAX_SHIFT_PX, None if inside is None else inside[which])
+        flux = self.fit.run(len(which), signal[which], raw[which], fx, fy, noise[which],
+                            self.saturation, _MAX_SHIFT_PX,
+                            None if inside is None else inside[which], flux0)
         x[which], y[which] = fx, fy
+        return flux.copy()
 
     def _windowed(self, grid: np.ndarray, x: np.ndarray,
                   y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -132,11 +132,11 @@ def centroid_variance(snr: np.ndarray, trail_px2: np.ndarray | None = None) -> n
     slews above the errors along trails of 5.5 px (16 mm) were 1.5-1.8 times
     those across, against the 1.6 this gives.
     """
-    spread2 = np.full(len(snr), CENTROID_SPREAD_PX ** 2)
-    if trail_px2 is not None:
-        spread2 += np.asarray(trail_px2, float) / 12.0
-    return CENTROID_FLOOR_PX ** 2 + spread2 / np.square(np.maximum(np.asarray(snr, float),
-                                                                   1e-6))
+    snr2 = np.square(np.maximum(np.asarray(snr, float), 1e-6))
+    if trail_px2 is None:
+        return CENTROID_FLOOR_PX ** 2 + CENTROID_SPREAD_PX ** 2 / snr2
+    return CENTROID_FLOOR_PX ** 2 + (CENTROID_SPREAD_PX ** 2
+                                     + np.asarray(trail_px2, float) / 12.0) / snr2
 
 
 def informative(xy: np.ndarray, snr: np.ndarray, centre: tuple[float, float],

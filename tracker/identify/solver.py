@@ -224,20 +224,21 @@ def _not_duplicate(xy: np.ndarray, radius: float) -> np.ndarray:
     return ~drop
 
 
-def _centre_rotation(camera: CameraModel) -> np.ndarray:
-    """Rotation (camera frame) taking the image-centre ray to +Z, the smallest one.
+def _centre_rotation(camera: CameraModel) -> np.ndarray | None:
+    """Rotation (camera frame) taking the image-centre ray to +Z, the smallest one, or None
+    when that ray is +Z (no rotation: the caller skips the product).
 
     RA/Dec/roll are reported for the image centre (docs/conventions.md); with the
     principal point elsewhere (a calibrated lens) the boresight is not there.
     """
     middle = ((camera.width - 1) / 2.0, (camera.height - 1) / 2.0)
     if (camera.cx, camera.cy) == middle:
-        return np.eye(3)     # the principal point's ray is +Z for any lens
+        return None     # the principal point's ray is +Z for any lens
     centre = camera.pixel_to_vector(np.array(middle))
     axis = np.cross(centre, [0.0, 0.0, 1.0])
     s = np.linalg.norm(axis)
     if s < 1e-15:
-        return np.eye(3)
+        return None
     return matrix_from_rotation_vector(axis / s * math.atan2(s, centre[2]))
 
 
@@ -489,13 +490,13 @@ class Solver:
             extra=unknown)
         named = len(found) - (np.count_nonzero(found < 0) if len(unknown) else 0)
         if self._snr_zero is None:
-            rows = slice(min(named, cfg.track_window_stars))
+            rows = np.arange(min(named, cfg.track_window_stars))
         else:
             snr = 10.0 ** (self._snr_zero - 0.4 * self._cat_mag[found[:named]])
             rows = informative(pix[:named], snr, (camera.cx, camera.cy),
                                cfg.track_window_information)[:cfg.track_window_stars]
         if named < len(found):
-            rows = np.concatenate((np.arange(named)[rows], np.arange(named, len(found))))
+            rows = np.concatenate((rows, np.arange(named, len(found))))
         catalogue, cam, xy = found[rows], cam[rows], pix[rows]
         # uncertainties and smears of the stars given windows only
         accel = math.radians(cfg.track_accel_deg_s2) * 0.5 * dt * dt
@@ -717,14 +718,16 @@ class Solver:
         """
         rows = (pairs >= 0).nonzero()[0]
         rotated = ref @ R.T
-        pix = camera.vector_to_pixel(rotated)
-        d = np.hypot(pix[:, 0] - xy[rows, 0], pix[:, 1] - xy[rows, 1])
+        off = camera.vector_to_pixel(rotated)
+        off -= xy[rows]
+        d = np.hypot(off[:, 0], off[:, 1])
         which = np.empty(len(xy), np.int64)
         which.fill(-1)
         dist = np.empty(len(xy))
         dist.fill(np.inf)
         near = d <= radius
-        which[rows[near]], dist[rows[near]] = pairs[rows[near]], d[near]
+        kept_rows = rows[near]
+        which[kept_rows], dist[kept_rows] = pairs[kept_rows], d[near]
         ok = which >= 0
         self._photometric_check(ok, which, cat_idx, flux)
         return ok, which, dist, ok[rows], rotated
@@ -784,10 +787,12 @@ class Solver:
             ref, rotated = gated[1][kept], rotated[kept]
         mags = self._cat_mag[matched]
         if self._snr is not None:
-            snr = self._snr[ok]
+            snr, seen_mags = self._snr[ok], mags
             seen = snr > 0
-            if seen.any():
-                self._snr_zero = _median(np.log10(snr[seen]) + 0.4 * mags[seen])
+            if not seen.all():
+                snr, seen_mags = snr[seen], mags[seen]
+            if len(snr):
+                self._snr_zero = _median(np.log10(snr) + 0.4 * seen_mags)
         faintest = float(mags.max())
         if math.isfinite(self._faintest):
             faintest = max(faintest, self._faintest - _FAINTEST_DECAY_MAG)
@@ -812,21 +817,27 @@ class Solver:
                           / max(1.0, 2 * n - 3 + _PRIOR_DOF))
         P = attitude_covariance(obs, sigma)
         hip[idx[ok]] = self._cat_hip[matched]
-        ra, dec, roll = radec_roll_from_matrix(_centre_rotation(lens_cam) @ R)
+        centre = _centre_rotation(lens_cam)
+        ra, dec, roll = radec_roll_from_matrix(R if centre is None else centre @ R)
         rate = rate_sigma = None
         if self._last_R is not None and self._last_t is not None and \
                 0 < t_ns - self._last_t <= self.cfg.track_max_gap_s * 1e9:
             dt = (t_ns - self._last_t) / 1e9
-            new_rate = rotation_vector(R @ self._last_R.T) / dt
-            new_P = (P + self._last_P) / (dt * dt)
+            new_rate = rotation_vector(R @ self._last_R.T)
+            new_rate /= dt
+            new_P = P + self._last_P
+            new_P /= dt * dt
             # average with the previous estimate: halves the noise of a steady rate
             if self._rate is None:
                 self._rate, self._rate_P = new_rate, new_P
             else:
-                self._rate = 0.5 * (self._rate + new_rate)
-                self._rate_P = 0.25 * (self._rate_P + new_P)
-            rate_sigma = np.sqrt(np.diag(self._rate_P))
-            if rate_sigma.max() <= math.radians(self.cfg.rate_valid_sigma_deg_s):
+                new_rate += self._rate
+                new_rate *= 0.5
+                new_P += self._rate_P
+                new_P *= 0.25
+                self._rate, self._rate_P = new_rate, new_P
+            rate_sigma = np.sqrt(self._rate_P.diagonal())
+            if max(rate_sigma.tolist()) <= math.radians(self.cfg.rate_valid_sigma_deg_s):
                 rate = -self._rate
             else:
                 rate_sigma = None
