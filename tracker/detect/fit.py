@@ -61,15 +61,18 @@ _TABLE_PER_PX = 256      # table nodes per px of the fractions' argument
 _TABLE_REACH_PX = 2.0    # the table runs this far beyond the window's radius
 
 
-def _adjugate_index() -> tuple[np.ndarray, ...]:
-    """Flat indices (a, b, c, d), each (9,), of a 3 x 3 matrix A with adj(A) = A[a] A[b] -
-    A[c] A[d], row-major (adj_ij = the cofactor C_ji)."""
+def _adjugate_index() -> np.ndarray:
+    """Flat indices (a, b, c, d) (4, 9) of a symmetric 3 x 3 matrix A with adj(A) = A[a] A[b]
+    - A[c] A[d], row-major (adj_ij = the cofactor C_ji), each read from A's upper triangle
+    (the only one :meth:`PixelGaussianFit._normal_equations` fills)."""
     i, j = np.divmod(np.arange(9), 3)
-    return ((j + 1) % 3 * 3 + (i + 1) % 3, (j + 2) % 3 * 3 + (i + 2) % 3,
-            (j + 1) % 3 * 3 + (i + 2) % 3, (j + 2) % 3 * 3 + (i + 1) % 3)
+    row, col = np.divmod(np.array(((j + 1) % 3 * 3 + (i + 1) % 3, (j + 2) % 3 * 3 + (i + 2) % 3,
+                                   (j + 1) % 3 * 3 + (i + 2) % 3, (j + 2) % 3 * 3 + (i + 1) % 3)),
+                         3)
+    return np.minimum(row, col) * 3 + np.maximum(row, col)
 
 
-_ADJ = np.array(_adjugate_index())   # (4, 9)
+_ADJ = _adjugate_index()
 
 
 class PixelGaussianFit:
@@ -84,13 +87,12 @@ class PixelGaussianFit:
                       for name in ("model", "weight", "resid", "usable")}
         self._rows = np.zeros(self.chunk * self.max_side * 3, np.float64)   # W b(c), R b(c)
         self._axis = np.zeros(self.chunk * self.max_side * 3, np.float64)   # b(c)
-        self._normal = np.zeros((self.chunk, 3, 3), np.float64)
+        self._normal = np.zeros((self.chunk, 9), np.float64)   # upper triangle, row-major
         self._grad = np.zeros((self.chunk, 3), np.float64)
-        self._flux = np.zeros(self.chunk, np.float64)
         self._at = np.zeros(2 * self.chunk * self.max_side, np.float64)
         self._node = np.zeros(2 * self.chunk * self.max_side, np.intp)
         self._entries = np.zeros(2 * self.chunk * self.max_side * 4, np.float64)
-        self._pos = np.zeros((2, self.chunk), np.float64)
+        self._state = np.zeros((3, self.chunk), np.float64)   # x, y, F
         self.side = 0
         self.sigma = 0.0
         # the table (module docstring) for the largest window: a smaller one is a view
@@ -136,8 +138,9 @@ class PixelGaussianFit:
         return self._axis[:size].reshape(shape), self._rows[:size].reshape(shape)
 
     def _normal_equations(self, m: int, fx, dfx, fy, dfy, flux, v: dict) -> None:
-        """normal (m, 3, 3) and grad (m, 3) over (x, y, F) from the weights ``v["weight"]``
-        and the weighted residuals ``v["resid"]`` (module docstring: bilinear forms).
+        """The normal matrix's upper triangle (m, 9, row-major; the lower left is left
+        unset) and grad (m, 3) over (x, y, F) from the weights ``v["weight"]`` and the
+        weighted residuals ``v["resid"]`` (module docstring: bilinear forms).
 
         Each row factor meets all the column products it needs in one
         contraction (fy^2 with W dfx^2, W dfx fx and W fx^2; fy dfy with the
@@ -153,12 +156,12 @@ class PixelGaussianFit:
         f, f2 = flux, flux * flux
         by_fy2 = np.einsum("ij,ijk->ik", fy2, wb)       # (xx, xf, ff) / (F^2, F, 1)
         by_fydy = np.einsum("ij,ijk->ik", fydy, wb[..., 1:])   # (xy, yf) / (F^2, F)
-        normal[:, 0, 0] = f2 * by_fy2[:, 0]
-        normal[:, 1, 1] = f2 * np.einsum("ij,ij->i", dfy * dfy, wb[..., 2])
-        normal[:, 2, 2] = by_fy2[:, 2]
-        normal[:, 0, 1] = normal[:, 1, 0] = f2 * by_fydy[:, 0]
-        normal[:, 0, 2] = normal[:, 2, 0] = f * by_fy2[:, 1]
-        normal[:, 1, 2] = normal[:, 2, 1] = f * by_fydy[:, 1]
+        np.multiply(f2, by_fy2[:, 0], out=normal[:, 0])
+        np.multiply(f2, by_fydy[:, 0], out=normal[:, 1])
+        np.multiply(f, by_fy2[:, 1], out=normal[:, 2])
+        np.multiply(f2, np.einsum("ij,ij->i", dfy * dfy, wb[..., 2]), out=normal[:, 4])
+        np.multiply(f, by_fydy[:, 1], out=normal[:, 5])
+        normal[:, 8] = by_fy2[:, 2]
         cols, rb = self._columns(m, 2)
         cols[..., 0], cols[..., 1] = dfx, fx
         np.matmul(v["resid"], cols, out=rb)             # (R dfx, R fx)
@@ -188,14 +191,15 @@ class PixelGaussianFit:
         v = self._views(m)
         side = self.side
         grid = (m, side, side)
-        flux = self._flux[:m]
+        state = self._state[:, :m]
+        pos, flux = state[:2], state[2]
         if flux0 is None:
             np.sum(signal, axis=1, out=flux)
             np.maximum(flux, 1.0, out=flux)
         else:
             flux[:] = flux0
         usable = v["usable"]
-        if np.ndim(saturation):
+        if getattr(saturation, "ndim", 0):
             saturation = saturation[:m, None, None]
         np.less(raw.reshape(grid), saturation, out=usable)   # 1.0 where not clipped
         if inside is not None:
@@ -203,14 +207,14 @@ class PixelGaussianFit:
         noise2 = np.maximum(np.square(noise[:m]), _MIN_VAR)[:, None, None]
         normal, grad = self._normal[:m], self._grad[:m]
         w, model, resid = v["weight"], v["model"], v["resid"]
-        pos = self._pos[:, :m]
         pos[0], pos[1] = x, y
         for _ in range(self.iterations):
             fx, fy, dfx, dfy = self._fractions(pos)
             np.multiply((flux[:, None] * fy)[:, :, None], fx[:, None, :], out=model)
-            # weights 1 / (noise^2 + max(model, 0)), zero for clipped pixels
-            np.maximum(model, 0.0, out=w)
-            np.add(w, noise2, out=w)
+            # weights 1 / (noise^2 + model), zero for clipped pixels (the model, a flux of
+            # at least 1 times fractions interpolated between non-negative nodes, is never
+            # negative)
+            np.add(model, noise2, out=w)
             np.divide(usable, w, out=w)
             np.subtract(signal.reshape(grid), model, out=resid)
             np.multiply(resid, w, out=resid)
@@ -218,10 +222,9 @@ class PixelGaussianFit:
             step = self._solve(normal, grad)
             if step is None:
                 break
-            np.add(pos, step[:2], out=pos)
+            np.add(state, step, out=state)
             np.maximum(pos, -max_shift, out=pos)    # np.clip's Python layers cost more
             np.minimum(pos, max_shift, out=pos)
-            np.add(flux, step[2], out=flux)
             np.maximum(flux, 1.0, out=flux)
         x[:], y[:] = pos[0], pos[1]
         return flux
@@ -246,13 +249,12 @@ class PixelGaussianFit:
 
     @staticmethod
     def _solve(normal: np.ndarray, grad: np.ndarray) -> np.ndarray | None:
-        """The steps (3, m) in (x, y, F) solving ``normal`` (m, 3, 3) step = ``grad`` (m, 3)
-        by the adjugate (zero for a star whose matrix is not positive definite), or None
-        when no star's is."""
-        flat = normal.reshape(len(normal), 9)
-        a, b, c, d = flat.take(_ADJ, axis=1).transpose(1, 0, 2)     # (4, m, 9)
+        """The steps (3, m) in (x, y, F) solving ``normal`` step = ``grad`` (m, 3) (the normal
+        matrix's upper triangle, (m, 9) row-major) by the adjugate (zero for a star whose
+        matrix is not positive definite), or None when no star's is."""
+        a, b, c, d = normal.take(_ADJ, axis=1).transpose(1, 0, 2)     # (4, m, 9)
         adj = a * b - c * d
-        det = np.einsum("ij,ij->i", flat[:, :3], adj[:, :3])
+        det = np.einsum("ij,ij->i", normal[:, :3], adj[:, :3])
         good = np.isfinite(det) & (det > 0)
         if not good.any():
             return None
