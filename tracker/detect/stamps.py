@@ -181,6 +181,9 @@ class StampDetector:
         k = len(self.ring)
         self.ring_ranks = [k // 4, (k - 1) // 2, k // 2, (3 * k) // 4]  # quartiles, median
         self.level = np.zeros(n, np.float32)
+        # per window, whether its left, top, right, bottom border is the frame's edge
+        self.edge = np.zeros((n, 4), bool)
+        self.far_origin = np.array([self.frame_shape[1] - c, self.frame_shape[0] - c])
         self.noise = np.zeros(n, np.float32)
         self.earlier = np.tri(self.max_candidates, k=-1, dtype=bool)   # [i, j]: j before i
         self.table = StarTable(cfg.max_stars)
@@ -256,7 +259,11 @@ class StampDetector:
                     out=self.stack[:, :, :c], casting="unsafe")
         cv2.sepFilter2D(self.stack.reshape(self.filt.shape), cv2.CV_32F, self.kernel,
                         self.kernel, dst=self.filt, borderType=cv2.BORDER_CONSTANT)
-        self._at_frame_edges(origins)
+        np.equal(origins, 0, out=self.edge[:, :2])
+        np.equal(origins, self.far_origin, out=self.edge[:, 2:])
+        sides = self.edge.any(axis=0)
+        if sides.any():
+            self._at_frame_edges(sides)
         timer.start("peaks")
         win, py, px = self._peaks(origins)
         timer.start("impulses")
@@ -292,24 +299,20 @@ class StampDetector:
         np.sqrt(var, out=self.noise)
         np.maximum(self.noise, QUANTISATION_NOISE_ADU, out=self.noise)
 
-    def _at_frame_edges(self, origins: np.ndarray) -> None:
+    def _at_frame_edges(self, sides: np.ndarray) -> None:
         """The filtered windows' pixels within the filter's half-width of a border that is
-        the frame's edge over the noise gain of the taps inside the frame (module
-        docstring, step 3), in place."""
-        h, w = self.frame_shape
+        the frame's edge (``sides`` (4,): some window's left, top, right, bottom border is;
+        which ones in ``edge``) over the noise gain of the taps inside the frame (module
+        docstring, step 3), in place (top and bottom rows first, then the columns)."""
         c, half, gain = self.cell, self.half, self.edge_gain
-        low, high = origins == 0, origins == (w - c, h - c)
-        if not (low.any() or high.any()):
-            return
         filt = self.filt.reshape(c, self.cells, -1)
-        for at, rows, cols, by in ((low[:, 1], slice(0, half), slice(0, c), gain[:, None, None]),
-                                   (high[:, 1], slice(c - half, c), slice(0, c),
-                                    gain[::-1, None, None]),
-                                   (low[:, 0], slice(None), slice(0, half), gain),
-                                   (high[:, 0], slice(None), slice(c - half, c), gain[::-1])):
-            which = np.flatnonzero(at)
-            if len(which):
-                filt[rows, which, cols] /= by
+        for side, rows, cols, by in ((1, slice(0, half), slice(0, c), gain[:, None]),
+                                     (3, slice(c - half, c), slice(0, c), gain[::-1, None]),
+                                     (0, slice(None), slice(0, half), gain),
+                                     (2, slice(None), slice(c - half, c), gain[::-1])):
+            if sides[side]:
+                for window in self.edge[:, side].nonzero()[0]:
+                    filt[rows, window, cols] /= by
 
     def _peaks(self, origins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(window, row, column) of the local maxima above threshold, most significant first."""
@@ -325,13 +328,10 @@ class StampDetector:
         win, px = np.divmod(rest, c)
         # the rows and columns a peak may take in its window: ``margin`` from an inner
         # border, up to a border that is the frame's edge
-        h, w = self.frame_shape
-        ox, oy = origins[win, 0], origins[win, 1]
-        inner = c - 1 - self.margin
-        inside = ((py >= np.where(oy == 0, 0, self.margin))
-                  & (py <= np.where(oy == h - c, c - 1, inner))
-                  & (px >= np.where(ox == 0, 0, self.margin))
-                  & (px <= np.where(ox == w - c, c - 1, inner)))
+        low = np.where(self.edge[:, :2], 0, self.margin)[win]              # (x, y)
+        high = np.where(self.edge[:, 2:], c - 1, c - 1 - self.margin)[win]
+        inside = ((px >= low[:, 0]) & (px <= high[:, 0])
+                  & (py >= low[:, 1]) & (py <= high[:, 1]))
         win, py, px = win[inside], py[inside], px[inside]
         significance = filt[py, win, px] / self.noise[win]
         # most significant first; equal ones by window, row, column
@@ -515,8 +515,11 @@ class StampDetector:
         (a copy)."""
         if len(which) == 0:
             return np.zeros(0)
-        fx, fy = x[which], y[which]
         self.fit.iterations = steps
+        if len(which) == len(x):             # every stamp: no copies
+            return self.fit.run(len(x), signal, raw, x, y, noise, self.saturation,
+                                _MAX_SHIFT_PX, inside, flux0).copy()
+        fx, fy = x[which], y[which]
         flux = self.fit.run(len(which), signal[which], raw[which], fx, fy, noise[which],
                             self.saturation, _MAX_SHIFT_PX,
                             None if inside is None else inside[which], flux0)
