@@ -27,6 +27,7 @@ from tracker.config import CameraConfig
 __all__ = ["CameraModel"]
 
 _NEWTON_STEPS = 12
+_CONVERGED = 1e-15   # Newton's last step on rho / rho_d (about 1): a few ulp
 
 
 @dataclass(frozen=True)
@@ -84,31 +85,31 @@ class CameraModel:
         with two numpy calls fewer in the loops that call it)."""
         return self.k1 + self.k2 * r2 if self.k2 else self.k1
 
-    def _undistort(self, distorted: np.ndarray) -> np.ndarray:
-        """Invert the radial model: solve rho*(1+k1 rho^2+k2 rho^4) = rho_d for rho.
+    def _undistortion(self, distorted: np.ndarray) -> np.ndarray:
+        """The ratio rho / rho_d (...,) that inverts the radial model at ``distorted``
+        (..., 2), the distorted normalised coordinates: multiplied by it they are the ideal
+        ones.
 
-        ``distorted`` (..., 2) the distorted normalised coordinates; returns
-        the ideal ones (a new array). Newton's method starts from the
-        first-order inverse rho_d / (1 + k1 rho_d^2 + k2 rho_d^4), within
-        about 2 k1^2 rho^5 of the root: two steps reach machine precision
-        for real lenses.
+        Newton's method on s = rho / rho_d, which solves s (1 + k1 a s^2 + k2 a^2 s^4) = 1
+        with a = rho_d^2 (s = 1 at the centre, with no division there), from the
+        first-order inverse 1 / (1 + k1 a + k2 a^2), within about 2 k1^2 rho^4 of the
+        root: two steps reach machine precision for real lenses, so convergence (a step
+        below ``_CONVERGED``, a few ulp of s ~ 1) is tested from the second on.
         """
         sq = distorted * distorted
-        rho_d = np.sqrt(sq[..., 0] + sq[..., 1])
-        r2 = rho_d * rho_d
-        rho = rho_d / (1.0 + r2 * self._radial(r2))
-        tolerance = 1e-16 * (1.0 + rho_d)
-        for _ in range(_NEWTON_STEPS):
-            r2 = rho * rho
-            g = rho * (1.0 + r2 * self._radial(r2)) - rho_d
-            dg = 1.0 + r2 * (3.0 * self.k1 + 5.0 * self.k2 * r2 if self.k2 else 3.0 * self.k1)
-            step = g / dg
-            rho = rho - step
-            if not (np.abs(step) > tolerance).any():
+        a = sq[..., 0] + sq[..., 1]
+        c1 = self.k1 * a
+        c2 = self.k2 * a * a if self.k2 else None
+        s = 1.0 / (1.0 + (c1 if c2 is None else c1 + c2))
+        for steps in range(_NEWTON_STEPS):
+            s2 = s * s
+            cs = c1 * s2 if c2 is None else s2 * (c1 + c2 * s2)      # k1 rho^2 + k2 rho^4
+            dcs = 3.0 * cs if c2 is None else s2 * (3.0 * c1 + 5.0 * c2 * s2)
+            step = (s * (1.0 + cs) - 1.0) / (1.0 + dcs)
+            s -= step
+            if steps and not (np.abs(step) > _CONVERGED).any():
                 break   # converged (quadratically)
-        # rho / rho_d, 1 at the centre (rho_d = 0)
-        ratio = np.divide(rho, rho_d, out=np.ones(rho.shape), where=rho_d > 0)
-        return distorted * ratio[..., None]
+        return s
 
     def vector_to_pixel(self, vectors: np.ndarray) -> np.ndarray:
         """Project camera-frame vectors (..., 3) to pixels (..., 2).
@@ -130,11 +131,12 @@ class CameraModel:
     def pixel_to_vector(self, pixels: np.ndarray) -> np.ndarray:
         """Unit vectors (..., 3) in the camera frame for pixel positions (..., 2)."""
         pixels = np.asarray(pixels, dtype=np.float64)
-        uv = (pixels - (self.cx, self.cy)) / self.f_px
+        vec = np.empty(pixels.shape[:-1] + (3,))
+        uv = vec[..., :2]
+        np.subtract(pixels, (self.cx, self.cy), out=uv)
+        uv /= self.f_px
         if self.k1 != 0.0 or self.k2 != 0.0:
-            uv = self._undistort(uv)
-        vec = np.empty(uv.shape[:-1] + (3,))
-        vec[..., :2] = uv
+            uv *= self._undistortion(uv)[..., None]
         vec[..., 2] = 1.0
         sq = vec * vec
         vec /= np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])[..., None]

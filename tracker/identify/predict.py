@@ -92,7 +92,7 @@ def pinhole_travel(camera: CameraModel, xy: np.ndarray, turn: np.ndarray) -> np.
     q = u t1 - w t0 it is f (t1 - w t2 + u q, -t0 + u t2 + w q), a few whole-array
     operations (a frame's cost here is numpy's calls: a third of building J).
     """
-    t0, t1, t2 = (float(v) for v in turn)
+    t0, t1, t2 = np.asarray(turn, dtype=np.float64).tolist()
     uw = np.subtract(xy, (camera.cx, camera.cy))
     uw /= camera.f_px
     q = uw @ np.array((t1, -t0))
