@@ -51,17 +51,19 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
     tr = r00 + r11 + r22
     cands = (tr, r00, r11, r22)
     k = cands.index(max(cands))        # the first largest, as argmax
+    # math.sqrt: the chosen radicand is at least 1 for any matrix (its term is the largest
+    # of the four; a NaN on the diagonal makes the trace NaN, chosen first, and stays NaN)
     if k == 0:
-        w = 0.5 * np.sqrt(1.0 + tr)
+        w = 0.5 * math.sqrt(1.0 + tr)
         q = [w, (r21 - r12) / (4 * w), (r02 - r20) / (4 * w), (r10 - r01) / (4 * w)]
     elif k == 1:
-        x = 0.5 * np.sqrt(1.0 + r00 - r11 - r22)
+        x = 0.5 * math.sqrt(1.0 + r00 - r11 - r22)
         q = [(r21 - r12) / (4 * x), x, (r01 + r10) / (4 * x), (r02 + r20) / (4 * x)]
     elif k == 2:
-        y = 0.5 * np.sqrt(1.0 - r00 + r11 - r22)
+        y = 0.5 * math.sqrt(1.0 - r00 + r11 - r22)
         q = [(r02 - r20) / (4 * y), (r01 + r10) / (4 * y), y, (r12 + r21) / (4 * y)]
     else:
-        z = 0.5 * np.sqrt(1.0 - r00 - r11 + r22)
+        z = 0.5 * math.sqrt(1.0 - r00 - r11 + r22)
         q = [(r10 - r01) / (4 * z), (r02 + r20) / (4 * z), (r12 + r21) / (4 * z), z]
     norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     if q[0] < 0:
@@ -186,7 +188,7 @@ def matrix_from_rotation_vector(theta: np.ndarray) -> np.ndarray:
     """Rotation matrix exp([theta]x) of a rotation vector (radians), Rodrigues' formula."""
     # in Python floats: a 3-vector's nine numpy calls cost more than its arithmetic
     # (tracking calls it every frame); K K = theta theta^T - angle^2 I
-    x, y, z = (float(t) for t in theta)
+    x, y, z = np.asarray(theta, dtype=np.float64).tolist()
     angle2 = x * x + y * y + z * z
     angle = math.sqrt(angle2)
     if angle < 1e-12:

@@ -19,6 +19,7 @@ All functions are vectorised over leading axes; angles are radians.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -28,6 +29,7 @@ __all__ = ["CameraModel"]
 
 _NEWTON_STEPS = 12
 _CONVERGED = 1e-15   # Newton's last step on rho / rho_d (about 1): a few ulp
+_ONE_STEP_C = 2e-4   # one Newton step inverts the distortion to machine precision below this
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,14 @@ class CameraModel:
 
     # -- geometry -----------------------------------------------------------
 
+    @cached_property
+    def principal_point(self) -> np.ndarray:
+        """(cx, cy) px as a read-only array, made once per model: a tuple in the frame
+        loop's whole-array operations is converted to one at every call."""
+        point = np.array((self.cx, self.cy))
+        point.flags.writeable = False
+        return point
+
     @property
     def pixel_scale_rad(self) -> float:
         """Angle subtended by one pixel at the principal point, radians."""
@@ -90,14 +100,19 @@ class CameraModel:
         (..., 2), the distorted normalised coordinates: multiplied by it they are the ideal
         ones.
 
-        Newton's method on s = rho / rho_d, which solves s (1 + k1 a s^2 + k2 a^2 s^4) = 1
-        with a = rho_d^2 (s = 1 at the centre, with no division there), from the
-        first-order inverse 1 / (1 + k1 a + k2 a^2), within about 2 k1^2 rho^4 of the
-        root: two steps reach machine precision for real lenses, so convergence (a step
-        below ``_CONVERGED``, a few ulp of s ~ 1) is tested from the second on.
+        Newton's method on s = rho / rho_d, which solves g(s) = s (1 + c1 s^2 + c2 s^4) - 1
+        = 0 with c1 = k1 a, c2 = k2 a^2, a = rho_d^2 (s = 1 at the centre, with no
+        division there), from the first-order inverse 1 / (1 + c1 + c2). With c = |c1| +
+        |c2| that start is within 4 c^2 of the root and a step squares the error times
+        |g''| / 2 |g'| <= 10 c, so one step leaves at most 160 c^5: under half an ulp of s
+        (about 1) while c <= ``_ONE_STEP_C`` over the stars (|k1| up to 0.005 on a 16 mm
+        field of the OV2311, 0.0013 on an 8 mm one). Otherwise the steps go on until one
+        is below ``_CONVERGED`` (a few ulp), tested from the second step on.
         """
         sq = distorted * distorted
         a = sq[..., 0] + sq[..., 1]
+        a_max = float(a.max(initial=0.0))          # (NaN: the steps' own test decides)
+        one_step = abs(self.k1) * a_max + abs(self.k2) * a_max * a_max <= _ONE_STEP_C
         c1 = self.k1 * a
         c2 = self.k2 * a * a if self.k2 else None
         s = 1.0 / (1.0 + (c1 if c2 is None else c1 + c2))
@@ -107,7 +122,7 @@ class CameraModel:
             dcs = 3.0 * cs if c2 is None else s2 * (3.0 * c1 + 5.0 * c2 * s2)
             step = (s * (1.0 + cs) - 1.0) / (1.0 + dcs)
             s -= step
-            if steps and not (np.abs(step) > _CONVERGED).any():
+            if one_step or (steps and not (np.abs(step) > _CONVERGED).any()):
                 break   # converged (quadratically)
         return s
 
@@ -125,7 +140,7 @@ class CameraModel:
         r2 = sq[..., 0] + sq[..., 1]
         uv *= (1.0 + r2 * self._radial(r2))[..., None]     # distorted
         uv *= self.f_px
-        uv += (self.cx, self.cy)
+        uv += self.principal_point
         return uv
 
     def pixel_to_vector(self, pixels: np.ndarray) -> np.ndarray:
@@ -133,7 +148,7 @@ class CameraModel:
         pixels = np.asarray(pixels, dtype=np.float64)
         vec = np.empty(pixels.shape[:-1] + (3,))
         uv = vec[..., :2]
-        np.subtract(pixels, (self.cx, self.cy), out=uv)
+        np.subtract(pixels, self.principal_point, out=uv)
         uv /= self.f_px
         if self.k1 != 0.0 or self.k2 != 0.0:
             uv *= self._undistortion(uv)[..., None]

@@ -93,7 +93,7 @@ def pinhole_travel(camera: CameraModel, xy: np.ndarray, turn: np.ndarray) -> np.
     operations (a frame's cost here is numpy's calls: a third of building J).
     """
     t0, t1, t2 = np.asarray(turn, dtype=np.float64).tolist()
-    uw = np.subtract(xy, (camera.cx, camera.cy))
+    uw = np.subtract(xy, camera.principal_point)
     uw /= camera.f_px
     q = uw @ np.array((t1, -t0))
     out = uw[:, ::-1] * np.array((-t2, t2))

@@ -307,7 +307,7 @@ class Solver:
         self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
         self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
         self._snr: np.ndarray | None = None   # this frame's stars' SNR, as _prepare ordered them
-        self._trail2: np.ndarray | None = None  # their squared travels over the exposure, px^2
+        self._weight: np.ndarray | None = None  # their Wahba weights (_weights), in that order
         self._flags: np.ndarray | None = None  # their detector flags (lost in space orders by them)
         self._faintest = math.inf   # catalogue magnitude of the faintest stars matched lately
         self._snr_zero: float | None = None   # log10 SNR + 0.4 mag of the last matches
@@ -397,7 +397,9 @@ class Solver:
             return self._fail(prepared, hip)
         idx, xy, flux = prepared
         smear = None if exposure_s is None else self.smear_px(xy, t_ns, exposure_s)
-        self._trail2 = None if smear is None else np.square(smear).sum(axis=1)
+        # every star's weight once (elementwise: the same numbers as the subsets' own)
+        self._weight = None if self._snr is None else 1.0 / centroid_variance(
+            self._snr, None if smear is None else np.square(smear).sum(axis=1))
         lens_cam = self.lens_camera()
         subset = None if search_area_px is None else np.asarray(predicted)
         if self._can_track(t_ns):
@@ -581,12 +583,9 @@ class Solver:
         """Wahba's weights (module docstring, refinement) of this frame's stars ``ok``
         (a mask over them as _prepare ordered them), or None (equal) when some star has no
         positive SNR."""
-        if self._snr is None:
+        if self._weight is None or not (self._snr[ok] > 0).all():    # (NaN fails it too)
             return None
-        snr = self._snr[ok]
-        if not (snr > 0).all():                       # (NaN fails it too)
-            return None
-        return 1.0 / centroid_variance(snr, None if self._trail2 is None else self._trail2[ok])
+        return self._weight[ok]
 
     def _seen(self, cat_idx: np.ndarray) -> np.ndarray:
         """Catalogue directions as this frame's observer sees them (module docstring)."""
