@@ -144,9 +144,10 @@ class TrailFit:
         h, w = image.shape
         ixy = np.rint(out[rows]).astype(np.intp)               # (x, y) the box's middle pixel
         inside = ((ixy >= half) & (ixy < (w - half, h - half))).all(axis=1)
-        rows, ixy, along_half = rows[inside], ixy[inside], along_half[inside]
-        if len(rows) == 0:
-            return out
+        if not inside.all():                # (the usual frame: every box inside, no copies)
+            rows, ixy, along_half = rows[inside], ixy[inside], along_half[inside]
+            if len(rows) == 0:
+                return out
         n = len(rows)
         u = smear[rows] / length[rows, None]                     # unit vector along the trail
         start = out[rows]
@@ -198,7 +199,10 @@ class TrailFit:
         across = np.array((-u[:, 1], u[:, 0])).T                 # b's direction
         c = start + s * (centre[0][:, None] * u + centre[2][:, None] * across)
         ok = (np.abs(c - start) <= self.max_shift).all(axis=1)   # (False where NaN or inf)
-        out[rows[ok]] = c[ok]
+        if ok.all():
+            out[rows] = c
+        else:
+            out[rows[ok]] = c[ok]
         return out
 
     def _rim(self, side: int) -> np.ndarray:

@@ -285,6 +285,7 @@ class Solver:
         self._prior = lens_prior(cfg, camera)
         self.lens = LensFilter(self._prior, cfg.lens_time_constant_s)
         self._lens_cam: tuple[LensState, CameraModel] | None = None   # lens_camera's last
+        self._report: tuple[LensState, LensReport] | None = None   # _lens_report's last
         self._obs: tuple | None = None   # (camera, xy, their unit vectors): _observed's last
         self.reset()
 
@@ -862,11 +863,15 @@ class Solver:
             hypotheses=budget.hypotheses if budget else 0, stages_ms=dict(self._timer.ms))
 
     def _lens_report(self, state: LensState) -> LensReport:
-        mm = self._mm_per_px
-        return LensReport(focal_length_mm=state.f_px * mm, sigma_focal_length_mm=state.sigma_f_px
-                          * mm, k1=state.k1, sigma_k1=state.sigma_k1,
-                          drift_ppm=1e6 * (state.f_px / self._prior.f_px - 1.0),
-                          frames=state.frames)
+        """The report of the filter's ``state``, made once per estimate (frozen: the
+        solutions of the frames between two lens fits share it)."""
+        if self._report is None or self._report[0] is not state:
+            mm = self._mm_per_px
+            self._report = (state, LensReport(
+                focal_length_mm=state.f_px * mm, sigma_focal_length_mm=state.sigma_f_px * mm,
+                k1=state.k1, sigma_k1=state.sigma_k1,
+                drift_ppm=1e6 * (state.f_px / self._prior.f_px - 1.0), frames=state.frames))
+        return self._report[1]
 
     def _fail(self, reason: str, hip: np.ndarray, budget: WorkBudget | None = None) -> Solution:
         self._timer.stop()
