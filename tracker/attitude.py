@@ -166,10 +166,13 @@ def attitude_covariance(obs: np.ndarray, sigma: float | np.ndarray) -> np.ndarra
     obs = np.asarray(obs, dtype=np.float64)
     inv_var = 1.0 / np.square(sigma)
     total = inv_var * len(obs) if np.ndim(inv_var) == 0 else np.sum(inv_var)
-    F = np.eye(3) * total - (obs.T * inv_var) @ obs
-    # F is symmetric: its inverse by cofactors over the determinant (a LAPACK call from the
-    # frame loop can cost a millisecond on a busy machine)
-    (xx, xy, xz), (_, yy, yz), (_, _, zz) = F.tolist()
+    # F = I total - G, G = sum obs_i obs_i^T / sigma_i^2, is symmetric: its inverse by
+    # cofactors over the determinant (a LAPACK call from the frame loop can cost a
+    # millisecond on a busy machine), its entries in Python floats (the same numbers as
+    # I total - G in numpy for a finite total: 0 - G_ij is -G_ij)
+    (g_xx, g_xy, g_xz), (_, g_yy, g_yz), (_, _, g_zz) = ((obs.T * inv_var) @ obs).tolist()
+    total = float(total)
+    xx, xy, xz, yy, yz, zz = total - g_xx, -g_xy, -g_xz, total - g_yy, -g_yz, total - g_zz
     c_xx, c_xy, c_xz = yy * zz - yz * yz, xz * yz - xy * zz, xy * yz - xz * yy
     c_yy, c_yz, c_zz = xx * zz - xz * xz, xy * xz - xx * yz, xx * yy - xy * xy
     det = xx * c_xx + xy * c_xy + xz * c_xz

@@ -28,8 +28,6 @@ from tracker.config import CameraConfig
 __all__ = ["CameraModel"]
 
 _NEWTON_STEPS = 12
-_CONVERGED = 1e-15   # Newton's last step on rho / rho_d (about 1): a few ulp
-_ONE_STEP_C = 2e-4   # one Newton step inverts the distortion to machine precision below this
 
 
 @dataclass(frozen=True)
@@ -95,36 +93,31 @@ class CameraModel:
         with two numpy calls fewer in the loops that call it)."""
         return self.k1 + self.k2 * r2 if self.k2 else self.k1
 
-    def _undistortion(self, distorted: np.ndarray) -> np.ndarray:
-        """The ratio rho / rho_d (...,) that inverts the radial model at ``distorted``
-        (..., 2), the distorted normalised coordinates: multiplied by it they are the ideal
-        ones.
+    def _undistort(self, distorted: np.ndarray) -> np.ndarray:
+        """Invert the radial model: solve rho*(1+k1 rho^2+k2 rho^4) = rho_d for rho.
 
-        Newton's method on s = rho / rho_d, which solves g(s) = s (1 + c1 s^2 + c2 s^4) - 1
-        = 0 with c1 = k1 a, c2 = k2 a^2, a = rho_d^2 (s = 1 at the centre, with no
-        division there), from the first-order inverse 1 / (1 + c1 + c2). With c = |c1| +
-        |c2| that start is within 4 c^2 of the root and a step squares the error times
-        |g''| / 2 |g'| <= 10 c, so one step leaves at most 160 c^5: under half an ulp of s
-        (about 1) while c <= ``_ONE_STEP_C`` over the stars (|k1| up to 0.005 on a 16 mm
-        field of the OV2311, 0.0013 on an 8 mm one). Otherwise the steps go on until one
-        is below ``_CONVERGED`` (a few ulp), tested from the second step on.
+        ``distorted`` (..., 2) the distorted normalised coordinates; returns
+        the ideal ones (a new array). Newton's method starts from the
+        first-order inverse rho_d / (1 + k1 rho_d^2 + k2 rho_d^4), within
+        about 2 k1^2 rho^5 of the root: two steps reach machine precision
+        for real lenses.
         """
         sq = distorted * distorted
-        a = sq[..., 0] + sq[..., 1]
-        a_max = float(a.max(initial=0.0))          # (NaN: the steps' own test decides)
-        one_step = abs(self.k1) * a_max + abs(self.k2) * a_max * a_max <= _ONE_STEP_C
-        c1 = self.k1 * a
-        c2 = self.k2 * a * a if self.k2 else None
-        s = 1.0 / (1.0 + (c1 if c2 is None else c1 + c2))
-        for steps in range(_NEWTON_STEPS):
-            s2 = s * s
-            cs = c1 * s2 if c2 is None else s2 * (c1 + c2 * s2)      # k1 rho^2 + k2 rho^4
-            dcs = 3.0 * cs if c2 is None else s2 * (3.0 * c1 + 5.0 * c2 * s2)
-            step = (s * (1.0 + cs) - 1.0) / (1.0 + dcs)
-            s -= step
-            if one_step or (steps and not (np.abs(step) > _CONVERGED).any()):
+        rho_d = np.sqrt(sq[..., 0] + sq[..., 1])
+        r2 = rho_d * rho_d
+        rho = rho_d / (1.0 + r2 * self._radial(r2))
+        tolerance = 1e-16 * (1.0 + rho_d)
+        for _ in range(_NEWTON_STEPS):
+            r2 = rho * rho
+            g = rho * (1.0 + r2 * self._radial(r2)) - rho_d
+            dg = 1.0 + r2 * (3.0 * self.k1 + 5.0 * self.k2 * r2 if self.k2 else 3.0 * self.k1)
+            step = g / dg
+            rho = rho - step
+            if not (np.abs(step) > tolerance).any():
                 break   # converged (quadratically)
-        return s
+        # rho / rho_d, 1 at the centre (rho_d = 0)
+        ratio = np.divide(rho, rho_d, out=np.ones(rho.shape), where=rho_d > 0)
+        return distorted * ratio[..., None]
 
     def vector_to_pixel(self, vectors: np.ndarray) -> np.ndarray:
         """Project camera-frame vectors (..., 3) to pixels (..., 2).
@@ -146,12 +139,11 @@ class CameraModel:
     def pixel_to_vector(self, pixels: np.ndarray) -> np.ndarray:
         """Unit vectors (..., 3) in the camera frame for pixel positions (..., 2)."""
         pixels = np.asarray(pixels, dtype=np.float64)
-        vec = np.empty(pixels.shape[:-1] + (3,))
-        uv = vec[..., :2]
-        np.subtract(pixels, self.principal_point, out=uv)
-        uv /= self.f_px
+        uv = (pixels - self.principal_point) / self.f_px
         if self.k1 != 0.0 or self.k2 != 0.0:
-            uv *= self._undistortion(uv)[..., None]
+            uv = self._undistort(uv)
+        vec = np.empty(uv.shape[:-1] + (3,))
+        vec[..., :2] = uv
         vec[..., 2] = 1.0
         sq = vec * vec
         vec /= np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])[..., None]
