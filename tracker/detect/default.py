@@ -89,8 +89,8 @@ handled, sigma 3.5 px):
    and counted, broad ones flagged EXTENDED or masked as bodies
    (tracker.detect.spot_shapes); so are fainter spots whose 3 x 3 holds a
    point beyond a star's noise, against a PSF the frame's stars measured
-   and the pixel noise measured on those spots (tracker.detect.point_spot).
-   Maxima on a bright body are masked
+   (else the sharpest the test is made for) and the pixel noise measured on
+   those spots (tracker.detect.point_spot). Maxima on a bright body are masked
    (tracker.detect.surroundings): too few sky sectors around them, light
    along a line with sky across it (a crescent, a ghost's ring), or a
    clipped plateau shared with another saturated candidate (the Earth's lit
@@ -1367,12 +1367,15 @@ class DefaultDetector:
         """Those of the spots ``which`` whose 3 x 3 holds a point (a hot pixel, a particle's
         charge) beyond a star's noise (tracker.detect.point_spot): (n,) bool.
 
-        Made only against a PSF this frame's stars measured (one carried from
-        elsewhere may be wider than its stars), at least ``CHARGE_SIGMA_PX`` wide (a
-        sharper star is as sharp as a particle's charge), and only on spots fainter
-        than ``sharp_min_snr`` (brighter, a PSF that is no Gaussian, a Moffat's core,
-        reads as a point component growing with the flux, and the shape tests judge
-        them). The pixels' noise model is measured on all of them together
+        Made against a PSF this frame's stars measured, at least ``CHARGE_SIGMA_PX``
+        wide (a sharper star is as sharp as a particle's charge); on a frame whose
+        stars did not measure it (one carried from elsewhere may be wider than its
+        stars), against ``CHARGE_SIGMA_PX``, the sharpest PSF the test is made for: a
+        hot pixel's light is in one pixel whatever the PSF, and a star of a wider PSF
+        than the one tested against reads a point component below zero. Only on spots
+        fainter than ``sharp_min_snr`` (brighter, a PSF that is no Gaussian, a Moffat's
+        core, reads as a point component growing with the flux, and the shape tests
+        judge them). The pixels' noise model is measured on all of them together
         (tracker.detect.point_spot.pixel_noise_model), and a spot it makes brighter
         than ``sharp_min_snr`` is judged against the background's noise and 1 ADU^2
         per ADU as before (a spot that bright is past the test's reach: on a nearly
@@ -1381,9 +1384,9 @@ class DefaultDetector:
         their residual). The noise is never taken below the rounding's.
         """
         out = np.zeros(len(cand), bool)
-        sigma_px = self.psf.sigma_px
+        sigma_px = self.psf.sigma_px if self.psf.stars else CHARGE_SIGMA_PX
         spots = np.flatnonzero(which)
-        if not self.psf.stars or sigma_px < CHARGE_SIGMA_PX or len(spots) == 0:
+        if sigma_px < CHARGE_SIGMA_PX or len(spots) == 0:
             return out
         padded, bg = self.input.padded.ravel(), self.bg_pad.ravel()
         offsets = (POINT_OFFSETS[:, 0] * self.layout.stride + POINT_OFFSETS[:, 1])[None, :]
