@@ -53,6 +53,8 @@ shot noise: the test is then the more lenient.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from tracker.detect.significance import SHOT_ADU
@@ -67,7 +69,8 @@ _SCALE_SE = 3.0       # the noise model is taken this many standard errors above
                       # the leverage, are not in them: at 2 a photon-counting frame's g
                       # read 0.83 against its true 1)
 _SCALE_FLOOR = 0.01   # ... from a fit of s and g kept at least this (a variance's scale)
-_SCALE_STEPS = 10     # reweighting steps of that fit (it settles in four or five)
+_SCALE_STEPS = 10     # reweighting steps of that fit at most (it settles in four or five)
+_SCALE_SETTLED = 1e-3 # ... ending when neither s nor g moves by this fraction of itself
 _SCALE_SPOTS = 20     # ... made on at least this many spots (120 residuals' degrees of
                       # freedom: fewer tell their own standard error too poorly)
 _EDGES = np.array([-1.5, -0.5, 0.5, 1.5])   # the 3 x 3 pixels' edges about their centre
@@ -102,23 +105,27 @@ def pixel_noise_model(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarra
     square = np.square(residual).ravel()
     background = (kept * np.square(noise)[:, None]).ravel()
     shot = (kept * np.maximum(coef[:, 0], 0.0)[:, None] * basis[:, :, 0]).ravel()
+    # the normal equations' products, (3, n): background^2, background shot, shot^2
+    products = np.stack([background * background, background * shot, shot * shot])
     scale, gain = 1.0, SHOT_ADU
     for _ in range(_SCALE_STEPS):
         variance = np.maximum(scale * background + gain * shot, 1e-12)
         weight = 1.0 / np.square(variance)
-        normal = np.array([[np.dot(weight, background * background),
-                            np.dot(weight, background * shot)],
-                           [np.dot(weight, background * shot), np.dot(weight, shot * shot)]])
-        if np.linalg.det(normal) <= 1e-12 * normal[0, 0] * normal[1, 1]:
+        bb, bs, ss = products @ weight
+        if bb * ss - bs * bs <= 1e-12 * bb * ss:
             return 1.0, SHOT_ADU
-        capped = np.minimum(square, _RESIDUAL_CAP * variance)
-        scale, gain = np.linalg.solve(normal, [np.dot(weight, background * capped),
-                                               np.dot(weight, shot * capped)])
-        scale, gain = max(scale, _SCALE_FLOOR), max(gain, _SCALE_FLOOR)
+        capped = weight * np.minimum(square, _RESIDUAL_CAP * variance)
+        rb, rs = float(np.dot(capped, background)), float(np.dot(capped, shot))
+        det = bb * ss - bs * bs
+        last = (scale, gain)
+        scale = max((ss * rb - bs * rs) / det, _SCALE_FLOOR)
+        gain = max((bb * rs - bs * rb) / det, _SCALE_FLOOR)
+        if abs(scale - last[0]) <= _SCALE_SETTLED * scale and (
+                abs(gain - last[1]) <= _SCALE_SETTLED * gain):
+            break
     # each squared residual's variance is 2 variance^2: the fit's covariance 2 normal^-1
-    spread = np.sqrt(2.0 * np.diag(np.linalg.inv(normal)))
-    return (min(scale + _SCALE_SE * spread[0], 1.0),
-            min(gain + _SCALE_SE * spread[1], SHOT_ADU))
+    return (min(scale + _SCALE_SE * math.sqrt(2.0 * ss / det), 1.0),
+            min(gain + _SCALE_SE * math.sqrt(2.0 * bb / det), SHOT_ADU))
 
 
 def point_significance(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarray,
