@@ -89,7 +89,8 @@ handled, sigma 3.5 px):
    and counted, broad ones flagged EXTENDED or masked as bodies
    (tracker.detect.spot_shapes); so are fainter spots whose 3 x 3 holds a
    point beyond a star's noise, against a PSF the frame's stars measured
-   (tracker.detect.point_spot). Maxima on a bright body are masked
+   (else the sharpest the test is made for) and the pixel noise measured on
+   those spots (tracker.detect.point_spot). Maxima on a bright body are masked
    (tracker.detect.surroundings): too few sky sectors around them, light
    along a line with sky across it (a crescent, a ghost's ring), or a
    clipped plateau shared with another saturated candidate (the Earth's lit
@@ -150,7 +151,12 @@ from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.multiplicative import MultiplicativeFit
 from tracker.detect.peaks import PeakFinder
-from tracker.detect.point_spot import POINT_OFFSETS, Z_STAR_LOSS, point_significance
+from tracker.detect.point_spot import (
+    POINT_OFFSETS,
+    Z_STAR_LOSS,
+    pixel_noise_model,
+    point_significance,
+)
 from tracker.detect.psf import (
     CHARGE_SIGMA_PX,
     OPTICS_WIDER,
@@ -165,7 +171,7 @@ from tracker.detect.psf import (
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.roughness import StarRoughness
 from tracker.detect.sigma_steps import SigmaSteps
-from tracker.detect.significance import shot_noise_snr
+from tracker.detect.significance import SHOT_ADU, shot_noise_snr
 from tracker.detect.slabs import SlabRunner
 from tracker.detect.spot_shapes import (
     STAR_ELLIPTICITY,
@@ -1361,31 +1367,44 @@ class DefaultDetector:
         """Those of the spots ``which`` whose 3 x 3 holds a point (a hot pixel, a particle's
         charge) beyond a star's noise (tracker.detect.point_spot): (n,) bool.
 
-        Made only against a PSF this frame's stars measured (one carried from
-        elsewhere may be wider than its stars), at least ``CHARGE_SIGMA_PX`` wide (a
-        sharper star is as sharp as a particle's charge), and only on spots fainter
-        than ``sharp_min_snr`` (brighter, a PSF that is no Gaussian, a Moffat's core,
-        reads as a point component growing with the flux, and the shape tests judge
-        them). ``_CHUNK`` spots at a time.
+        Made against a PSF this frame's stars measured, at least ``CHARGE_SIGMA_PX``
+        wide (a sharper star is as sharp as a particle's charge); on a frame whose
+        stars did not measure it (one carried from elsewhere may be wider than its
+        stars), against ``CHARGE_SIGMA_PX``, the sharpest PSF the test is made for: a
+        hot pixel's light is in one pixel whatever the PSF, and a star of a wider PSF
+        than the one tested against reads a point component below zero. Only on spots
+        fainter than ``sharp_min_snr`` (brighter, a PSF that is no Gaussian, a Moffat's
+        core, reads as a point component growing with the flux, and the shape tests
+        judge them). The pixels' noise model is measured on all of them together
+        (tracker.detect.point_spot.pixel_noise_model), and a spot it makes brighter
+        than ``sharp_min_snr`` is judged against the background's noise and 1 ADU^2
+        per ADU as before (a spot that bright is past the test's reach: on a nearly
+        noiseless sky of salt and pepper the stars' light measures nearly noiseless
+        too, and a PSF that is no Gaussian and the impulses replaced on it are all
+        their residual). The noise is never taken below the rounding's.
         """
         out = np.zeros(len(cand), bool)
-        sigma_px = self.psf.sigma_px
-        if not self.psf.stars or sigma_px < CHARGE_SIGMA_PX:
-            return out
+        sigma_px = self.psf.sigma_px if self.psf.stars else CHARGE_SIGMA_PX
         spots = np.flatnonzero(which)
+        if sigma_px < CHARGE_SIGMA_PX or len(spots) == 0:
+            return out
         padded, bg = self.input.padded.ravel(), self.bg_pad.ravel()
         offsets = (POINT_OFFSETS[:, 0] * self.layout.stride + POINT_OFFSETS[:, 1])[None, :]
-        for start in range(0, len(spots), _CHUNK):
-            part = spots[start:start + _CHUNK]
-            ox, oy = np.rint(v["x0"][part]), np.rint(v["y0"][part])
-            at = (cand[part] + oy.astype(np.intp) * self.layout.stride
-                  + ox.astype(np.intp))[:, None] + offsets
-            light = np.take(padded, at, mode="clip").astype(np.float64)
-            light -= np.take(bg, at, mode="clip")
-            light -= level[part, None]
-            z = point_significance(light, v["x0"][part] - ox, v["y0"][part] - oy,
-                                   noise[part], sigma_px)
-            out[part] = z > Z_STAR_LOSS
+        ox, oy = np.rint(v["x0"][spots]), np.rint(v["y0"][spots])
+        at = (cand[spots] + oy.astype(np.intp) * self.layout.stride
+              + ox.astype(np.intp))[:, None] + offsets
+        light = np.take(padded, at, mode="clip").astype(np.float64)
+        light -= np.take(bg, at, mode="clip")
+        light -= level[spots, None]
+        phase_x, phase_y = v["x0"][spots] - ox, v["y0"][spots] - oy
+        scale, shot_adu = pixel_noise_model(light, phase_x, phase_y, noise[spots], sigma_px)
+        measured = np.maximum(math.sqrt(scale) * noise[spots], QUANTISATION_NOISE_ADU)
+        faint = shot_noise_snr(v["weighted"][spots], v["snr"][spots] * noise[spots] / measured,
+                               shot_adu) < self.cfg.sharp_min_snr
+        z = point_significance(light, phase_x, phase_y,
+                               np.where(faint, measured, noise[spots]), sigma_px,
+                               np.where(faint, shot_adu, SHOT_ADU))
+        out[spots] = z > Z_STAR_LOSS
         return out
 
     def _embedded(self, n: int, cand: np.ndarray, v: dict) -> np.ndarray:
