@@ -10,7 +10,12 @@ from spot_grid import SHAPE, SKY_E, found, grid_centres, sensor_frame, spot
 
 from tracker.config import DetectConfig
 from tracker.detect import make_detector
-from tracker.detect.point_spot import Z_STAR_LOSS, pixel_noise_model, point_significance
+from tracker.detect.point_spot import (
+    Z_STAR_LOSS,
+    _symmetric_inverse,
+    pixel_noise_model,
+    point_significance,
+)
 
 _NOISE_ADU = 3.0
 
@@ -169,3 +174,12 @@ def test_faint_hot_pixels_are_rejected_on_a_frame_whose_stars_did_not_measure_it
     assert (stars, hot) == (13, 437)
     assert stars_kept >= 12
     assert hot_kept <= 4, hot_kept
+
+
+def test_the_noise_models_symmetric_inverse_is_the_matrix_inverse():
+    """The closed-form inverse (no LAPACK call in the frame loop) of spots' 3 x 3 Gram
+    matrices times the matrices is the identity."""
+    basis = np.random.default_rng(5).normal(size=(300, 9, 3))
+    gram = np.einsum("mik,mil->mkl", basis, basis)
+    product = np.einsum("mkl,mln->mkn", _symmetric_inverse(gram), gram)
+    assert np.abs(product - np.eye(3)).max() < 1e-12

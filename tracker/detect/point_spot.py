@@ -90,6 +90,15 @@ def _star_basis(phase_x: np.ndarray, phase_y: np.ndarray, sigma_px: float) -> np
     return basis
 
 
+def _symmetric_inverse(gram: np.ndarray) -> np.ndarray:
+    """Inverses (m, 3, 3) of symmetric 3 x 3 matrices ``gram`` (m, 3, 3), by cross
+    products of their rows over the determinant: no LAPACK call, whose BLAS threads
+    would spin on the core the detector's own slab thread runs on."""
+    a, b, c = gram[:, 0], gram[:, 1], gram[:, 2]
+    rows = np.stack([np.cross(b, c), np.cross(c, a), np.cross(a, b)], axis=1)
+    return rows / np.einsum("mk,mk->m", a, rows[:, 0])[:, None, None]
+
+
 def pixel_noise_model(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarray,
                       noise: np.ndarray, sigma_px: float) -> tuple[float, float]:
     """(s, g): each pixel's variance is s noise^2 + g (its star light), ADU^2, measured
@@ -98,7 +107,7 @@ def pixel_noise_model(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarra
     if len(light) < _SCALE_SPOTS:
         return 1.0, SHOT_ADU
     basis = _star_basis(phase_x, phase_y, sigma_px)
-    inverse = np.linalg.inv(np.einsum("mik,mil->mkl", basis, basis))
+    inverse = _symmetric_inverse(np.einsum("mik,mil->mkl", basis, basis))
     coef = np.einsum("mkl,mil,mi->mk", inverse, basis, light)
     residual = light - np.einsum("mik,mk->mi", basis, coef)
     kept = 1.0 - np.einsum("mik,mkl,mil->mi", basis, inverse, basis)    # 1 - leverage
