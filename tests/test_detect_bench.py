@@ -92,3 +92,47 @@ def test_aperture_flux_of_the_peers_sums_a_star_over_its_local_background():
     expected = 5000.0 / frame.truth["noise"]["gain_e_per_adu"]
     got = aperture_flux(image, np.array([30.3]), np.array([29.6]))[0]
     assert 0.85 * expected < got <= expected
+
+
+def _camera_rotation(axis: int, angle_rad: float) -> np.ndarray:
+    """The camera turned by ``angle_rad`` about its own ``axis`` (0 = x, 2 = z)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    i, j = [k for k in range(3) if k != axis]
+    rot = np.eye(3)
+    rot[i, i] = rot[j, j] = c
+    rot[i, j], rot[j, i] = -s, s
+    return rot
+
+
+@pytest.mark.parametrize("cross_arcsec, names_wrong_star, outcome", [
+    (62.0, False, "solved"),    # within 3 px of an 8 mm lens (232 arcsec): seed 43's faint frame
+    (62.0, True, "solved"),     # a mislabel inside the tolerances still gives the attitude
+    (400.0, False, "off"),      # beyond the tolerances on right stars only
+    (400.0, True, "false"),     # beyond them naming a wrong star: a misidentification
+])
+def test_a_lunar_solve_is_false_only_when_off_and_naming_a_wrong_star(cross_arcsec,
+                                                                      names_wrong_star,
+                                                                      outcome):
+    from types import SimpleNamespace
+
+    from tracker.attitude import matrix_from_radec_roll
+    from tracker.bench.detect_solve import _outcome
+    from tracker.camera import CameraModel
+    from tracker.config import CameraConfig
+    from tracker.detect import STAR_DTYPE
+
+    camera = CameraModel.from_config(dataclasses.replace(CameraConfig(), focal_length_mm=8.0))
+    rendered = np.zeros(4, [("x", float), ("y", float), ("hip", np.int32)])
+    rendered["x"], rendered["y"] = [100.0, 400.0, 700.0, 1000.0], [200.0, 900.0, 500.0, 300.0]
+    rendered["hip"] = [11, 22, 33, 44]
+    stars = np.zeros(4, STAR_DTYPE)
+    stars["x"], stars["y"] = rendered["x"] + 0.3, rendered["y"] - 0.2
+    R_true = matrix_from_radec_roll(1.0, -0.5, 0.3)
+    named = rendered["hip"].copy()
+    if names_wrong_star:
+        named[1] = 55
+    solution = SimpleNamespace(ok=True, hip=named,
+                               R=_camera_rotation(0, np.radians(cross_arcsec / 3600)) @ R_true)
+    solver = SimpleNamespace(reset=lambda: None, solve=lambda s, t: solution)
+    frame = SimpleNamespace(R=R_true, stars=rendered)
+    assert _outcome(solver, stars, frame, camera) == outcome

@@ -13,18 +13,23 @@ before every frame) solves:
   aperture over the median of its border (tracker.bench.detect_peers
   gives positions only).
 
-A solution is false when its boresight is more than 60 arcsec from the
-truth or its roll more than 0.1 deg off.
+A solution is judged as ``tracker bench solve`` judges one
+(tracker.bench.solve): it is *off* when its boresight is more than 60 arcsec
+or 3 pixels from the truth, or its roll more than 0.1 deg or 3 pixels at the
+corner; an off solution is *false* when it names a wrong star (one whose true
+position is not within 2 px of the centroid it names, or a centroid on no
+star): a wrong identification. An off solution that names only right stars
+(few faint stars under a wide PSF fix the attitude poorly, and its reported
+sigma says so) counts as neither solved nor false, in its own column. A frame
+counts as solved when its solution is not off.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from tracker.attitude import attitude_error
 from tracker.bench.detect_peers import PEERS
+from tracker.bench.solve import CentroidSources, outside_tolerances
 from tracker.camera import CameraModel
 from tracker.detect import STAR_DTYPE, make_detector
 from tracker.identify import make_solver
@@ -32,8 +37,6 @@ from tracker.identify import make_solver
 __all__ = ["solve_sets", "aperture_flux"]
 
 _APERTURE = 3      # half-width of the peers' flux aperture, px
-_FALSE_CROSS_RAD = math.radians(60.0 / 3600.0)   # a solve this far off the truth is false
-_FALSE_ROLL_RAD = math.radians(0.1)              # ... or its roll this far
 
 
 def aperture_flux(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -59,13 +62,18 @@ def _stars(x, y, flux) -> np.ndarray:
     return out[order]
 
 
-def _outcome(solver, stars, R_true) -> str:
+def _outcome(solver, stars: np.ndarray, frame, camera: CameraModel) -> str:
+    """"unsolved", "solved", "off" or "false" (module docstring) for ``stars`` of ``frame``."""
     solver.reset()
     sol = solver.solve(stars, 0)
     if not sol.ok:
         return "unsolved"
-    cross, roll = attitude_error(sol.R, R_true)
-    return "false" if cross > _FALSE_CROSS_RAD or abs(roll) > _FALSE_ROLL_RAD else "solved"
+    off = outside_tolerances(sol.R, frame.R, camera)[0]
+    if not off:
+        return "solved"
+    named = np.flatnonzero(sol.hip > 0)
+    wrong = CentroidSources.nearest(frame.stars, stars).wrong(named, sol.hip[named])
+    return "false" if wrong else "off"
 
 
 def solve_sets(sets, cfg, catalogue, methods) -> dict:
@@ -78,33 +86,34 @@ def solve_sets(sets, cfg, catalogue, methods) -> dict:
         solver = make_solver(cfg.identify, camera, catalogue)
         detector = make_detector(cfg.detect, (data.camera.height, data.camera.width),
                                  data.camera.bit_depth)
-        tally = {m: {"frames": 0, "solvable": 0, "solved": 0, "false": 0}
+        tally = {m: {"frames": 0, "solvable": 0, "solved": 0, "off": 0, "false": 0}
                  for m in ["truth", *methods]}
         for frame in data.frames:
             s = frame.stars
             seen = s["in_frame"] & (s["peak_snr"] >= 5.0)
             truth = _outcome(solver, _stars(s["x"][seen], s["y"][seen], s["flux_e"][seen]),
-                             frame.R)
+                             frame, camera)
             solvable = truth == "solved"
             for m in tally:
                 if m == "truth":
                     outcome = truth
                 elif m == "default":
                     outcome = _outcome(solver, detector.detect(frame.image).stars.copy(),
-                                       frame.R)
+                                       frame, camera)
                 elif m in PEERS:
                     try:
                         x, y = (np.asarray(v, float) for v in PEERS[m](frame.image))
                     except Exception:  # a peer failing on a frame is a result, not a crash
                         x = y = np.zeros(0)
                     outcome = _outcome(solver, _stars(x, y, aperture_flux(frame.image, x, y)),
-                                       frame.R)
+                                       frame, camera)
                 else:
                     continue
                 t = tally[m]
                 t["frames"] += 1
                 t["solvable"] += solvable
                 t["solved"] += solvable and outcome == "solved"
+                t["off"] += outcome == "off"
                 t["false"] += outcome == "false"
         results[data.name] = {m: t for m, t in tally.items() if t["frames"]}
     return results

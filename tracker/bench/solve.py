@@ -123,15 +123,15 @@ class _Centroider:
                                           camera_cfg.bit_depth)
         self.width, self.height = camera_cfg.width, camera_cfg.height
 
-    def __call__(self, frame, draw: _Draw, keep: int | None = None) -> tuple[np.ndarray, int,
-                                                                              _Truth]:
+    def __call__(self, frame, draw: _Draw,
+                 keep: int | None = None) -> tuple[np.ndarray, int, CentroidSources]:
         """Centroids, detectable count and identities; ``keep``: only that many brightest."""
         s = frame.stars
         det = s["in_frame"] & (s["mf_snr"] >= self.args.snr_min)
         n_det = int(np.count_nonzero(det))
         if self.detector is not None:
             found = self.detector.detect(frame.image).stars.copy()
-            return found, n_det, _Truth.nearest(frame.stars, found)
+            return found, n_det, CentroidSources.nearest(frame.stars, found)
         s = s[det]
         if keep is not None:
             s = s[np.argsort(-s["flux_e"])[:keep]]
@@ -151,10 +151,10 @@ class _Centroider:
                                     else self.rng.uniform(100, 1000, nf))
         source = np.full((len(out), 2), np.nan)
         source[:len(s)] = np.column_stack((s["x"], s["y"]))
-        return out, n_det, _Truth(frame.stars, source)
+        return out, n_det, CentroidSources(frame.stars, source)
 
 
-class _Truth:
+class CentroidSources:
     """Which rendered star each centroid is (its noiseless position; NaN: a false star)."""
 
     BLEND_PX = 2.0
@@ -167,7 +167,7 @@ class _Truth:
         self.xy = np.column_stack((rendered["x"], rendered["y"]))[known][order]
 
     @classmethod
-    def nearest(cls, rendered: np.ndarray, found: np.ndarray) -> _Truth:
+    def nearest(cls, rendered: np.ndarray, found: np.ndarray) -> CentroidSources:
         """For detections: the rendered star within 2 px of each, if any."""
         xy = np.column_stack((rendered["x"], rendered["y"]))
         source = np.full((len(found), 2), np.nan)
@@ -242,7 +242,7 @@ def _tetra3_solve(t3, stars, camera: CameraModel, fov_error: float):
                                    math.radians(res["Roll"])), ms, cpu, rows, hips)
 
 
-def _outside(R, R_true, camera: CameraModel) -> tuple[bool, float, float]:
+def outside_tolerances(R, R_true, camera: CameraModel) -> tuple[bool, float, float]:
     """(beyond the tolerances?, cross-boresight and roll errors in arcsec); module docstring."""
     cross, roll = attitude_error(R, R_true)
     cross_as, roll_as = cross * _ARCSEC, roll * _ARCSEC
@@ -315,7 +315,7 @@ def _sigma_check(good: list[dict], min_matched: int = 8) -> dict:
             "roll_ratio": rms("sigma_roll") / rms("roll_as")}
 
 
-def _ours(solver, stars, truth: _Truth, t_ns, R_true, f_true_mm: float,
+def _ours(solver, stars, truth: CentroidSources, t_ns, R_true, f_true_mm: float,
           camera: CameraModel) -> dict:
     t0, c0 = time.perf_counter(), time.thread_time()
     sol = solver.solve(stars, t_ns)
@@ -325,7 +325,8 @@ def _ours(solver, stars, truth: _Truth, t_ns, R_true, f_true_mm: float,
            "matched": sol.matched, "patterns": sol.patterns, "hypotheses": sol.hypotheses}
     if sol.ok:
         named = np.flatnonzero(sol.hip)
-        _judge(rec, truth.wrong(named, sol.hip[named]), *_outside(sol.R, R_true, camera))
+        _judge(rec, truth.wrong(named, sol.hip[named]),
+               *outside_tolerances(sol.R, R_true, camera))
         rec["sigma_cross"], rec["sigma_roll"] = sol.sigma_cross_arcsec, sol.sigma_roll_arcsec
         rec["focal_error"] = sol.focal_length_mm / f_true_mm - 1.0
         rec["focal_sigma"] = sol.sigma_focal_length_mm / f_true_mm
@@ -333,12 +334,12 @@ def _ours(solver, stars, truth: _Truth, t_ns, R_true, f_true_mm: float,
     return rec
 
 
-def _theirs(t3, stars, truth: _Truth, configured: CameraModel, R_true, fov_error: float,
-            camera: CameraModel) -> dict:
+def _theirs(t3, stars, truth: CentroidSources, configured: CameraModel, R_true,
+            fov_error: float, camera: CameraModel) -> dict:
     R, ms, cpu, rows, hips = _tetra3_solve(t3, stars, configured, fov_error)
     rec = {"ok": R is not None, "ms": ms, "cpu_ms": cpu, "false": False}
     if R is not None:
-        _judge(rec, truth.wrong(rows, hips), *_outside(R, R_true, camera))
+        _judge(rec, truth.wrong(rows, hips), *outside_tolerances(R, R_true, camera))
     return rec
 
 
