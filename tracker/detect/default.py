@@ -1197,18 +1197,21 @@ class DefaultDetector:
         np.take(self.input.padded.ravel(), idx, out=reads, mode="clip")
         full = self.plateau_full[:k]
         np.greater_equal(reads, self.saturation, out=full)
-        self._own_core(full)
-        count = full.sum(axis=1)
-        wide = count >= math.pi * (_PLATEAU_FILL * self.radius) ** 2
-        if not wide.any():
+        least = math.pi * (_PLATEAU_FILL * self.radius) ** 2
+        wide = np.flatnonzero(full.sum(axis=1) >= least)   # the own core is no larger
+        if len(wide) == 0:
             return
-        mean = (full[wide] @ self.plateau_xy) / count[wide, None]
+        core = self._own_core(full[wide])
+        count = core.sum(axis=1)
+        fills = count >= least
+        wide = wide[fills]
+        mean = (core[fills] @ self.plateau_xy) / count[fills, None]
         v["x0"][clipped[wide]] = mean[:, 0]
         v["y0"][clipped[wide]] = mean[:, 1]
 
-    def _own_core(self, full: np.ndarray) -> None:
-        """Keep in ``full`` ((k, box) bool: the clipped pixels of :meth:`_centre_plateaus`'
-        boxes) only each star's own core: those joined through clipped pixels
+    def _own_core(self, full: np.ndarray) -> np.ndarray:
+        """Of ``full`` ((k, box) bool: the clipped pixels of :meth:`_centre_plateaus`'
+        boxes), each star's own core as (k, box) bool: those joined through clipped pixels
         (4-connected) to the clipped ones of the candidate's 3 x 3 at the box's centre
         (the filter's peak may sit just beside them). A body clipped beside a star (lit
         ground 7 px below a star of peak SNR 46, lunar bench) is no part of its core, and
@@ -1230,7 +1233,7 @@ class DefaultDetector:
             if np.array_equal(grow, core):
                 break
             np.copyto(core, grow)
-        np.copyto(clipped, core)
+        return core.reshape(k, side * side)
 
     def _centre_on_filter(self, n: int, cand: np.ndarray, v: dict, light: np.ndarray) -> None:
         """Centre the saturated stars of a frame whose noise clips at full scale on the
