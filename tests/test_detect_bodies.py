@@ -97,6 +97,28 @@ def test_stars_above_saturated_ground_meet_the_skys_threshold():
     assert not np.any(depth > 0.0)
 
 
+
+def test_saturated_stars_just_above_saturated_ground_are_centred_on_their_own_core():
+    """Stars of a sharp PSF (sigma 0.75 px, 20000 e-, cores clipped) 6-11 px above ground
+    lit past full scale, three seeds. A clipped core is centred on its clipped pixels
+    when they nearly fill the window; those pixels are the star's own, joined to its
+    peak, not the ground's in the same box: each such star is found within 0.3 px (the
+    ground's clipped rows pulled them 8-10 px onto it, and all 36 were lost)."""
+    shape = (480, 640)
+    yy, xx = np.mgrid[:480, :640]
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        horizon = 300.0 + 8.0 * np.sin(xx[0] / 47.0 + rng.uniform(0, 6))
+        light = np.where(yy >= horizon[None, :], 20000.0, 0.0)
+        xs = np.linspace(40, 600, 12) + rng.uniform(-3, 3, 12)
+        height = np.tile([6.0, 7.0, 8.0, 10.0], 3) + rng.uniform(0, 1, 12)
+        ys = np.interp(xs, np.arange(640), horizon) - height
+        frame = render_points(shape, xs, ys, np.full(12, 20000.0), CLEAN, rng,
+                              noise_model="realistic", light_e=light, psf_sigma_px=0.75)
+        assert np.all(frame.image[np.rint(ys).astype(int), np.rint(xs).astype(int)] >= 1023)
+        result = make_detector(CFG, shape, 10).detect(frame.image)
+        assert np.all(_nearest(xs, ys, result.stars) < 0.3), seed
+
 def _particle_event(seed: int):
     """(xs, ys, scene, frame): 150 tracks and 36 stars of 4000 e- on a 512 x 512 frame."""
     rng = np.random.default_rng(seed)

@@ -389,6 +389,9 @@ class DefaultDetector:
         self.plateau_index = np.zeros((_PLATEAU_STARS, dx.size), np.intp)
         self.plateau_reads = np.zeros((_PLATEAU_STARS, dx.size), np.uint16)
         self.plateau_full = np.zeros((_PLATEAU_STARS, dx.size), np.bool_)
+        side = 2 * max_radius + 1
+        self.plateau_core = np.zeros((_PLATEAU_STARS, side, side), np.bool_)
+        self.plateau_grow = np.zeros((_PLATEAU_STARS, side, side), np.bool_)
         dy, dx = (a.ravel() for a in np.mgrid[-2:3, -2:3])
         self.round_offsets = (dy * layout.stride + dx).astype(np.intp)
         self.round_moments = np.stack([np.ones(25), dx, dy, dx * dx, dy * dy, dx * dy],
@@ -1176,7 +1179,8 @@ class DefaultDetector:
 
     def _centre_plateaus(self, n: int, cand: np.ndarray, v: dict, light: np.ndarray) -> None:
         """Centre the stars whose clipped core nearly fills the centroid's window on that
-        core: the clipped pixels are those inside the PSF's contour at full scale,
+        core (the clipped pixels joined to its peak, :meth:`_own_core`): the clipped
+        pixels are those inside the PSF's contour at full scale,
         symmetric about the star's centre, and their mean position is it (to about a
         tenth of a pixel), where the window has too few unclipped pixels left to fit.
         At most ``_PLATEAU_STARS`` of them (the first candidates), in boxes as wide
@@ -1193,13 +1197,43 @@ class DefaultDetector:
         np.take(self.input.padded.ravel(), idx, out=reads, mode="clip")
         full = self.plateau_full[:k]
         np.greater_equal(reads, self.saturation, out=full)
-        count = full.sum(axis=1)
-        wide = count >= math.pi * (_PLATEAU_FILL * self.radius) ** 2
-        if not wide.any():
+        least = math.pi * (_PLATEAU_FILL * self.radius) ** 2
+        wide = np.flatnonzero(full.sum(axis=1) >= least)   # the own core is no larger
+        if len(wide) == 0:
             return
-        mean = (full[wide] @ self.plateau_xy) / count[wide, None]
+        core = self._own_core(full[wide])
+        count = core.sum(axis=1)
+        fills = count >= least
+        wide = wide[fills]
+        mean = (core[fills] @ self.plateau_xy) / count[fills, None]
         v["x0"][clipped[wide]] = mean[:, 0]
         v["y0"][clipped[wide]] = mean[:, 1]
+
+    def _own_core(self, full: np.ndarray) -> np.ndarray:
+        """Of ``full`` ((k, box) bool: the clipped pixels of :meth:`_centre_plateaus`'
+        boxes), each star's own core as (k, box) bool: those joined through clipped pixels
+        (4-connected) to the clipped ones of the candidate's 3 x 3 at the box's centre
+        (the filter's peak may sit just beside them). A body clipped beside a star (lit
+        ground 7 px below a star of peak SNR 46, lunar bench) is no part of its core, and
+        its pixels in the box pulled the core's mean 8 px onto the ground."""
+        k = len(full)
+        side = self.plateau_core.shape[1]
+        clipped = full.reshape(k, side, side)
+        core, grow = self.plateau_core[:k], self.plateau_grow[:k]
+        core.fill(False)
+        middle = np.s_[:, side // 2 - 1:side // 2 + 2, side // 2 - 1:side // 2 + 2]
+        core[middle] = clipped[middle]
+        for _ in range(side * side):
+            np.copyto(grow, core)
+            grow[:, 1:] |= core[:, :-1]
+            grow[:, :-1] |= core[:, 1:]
+            grow[:, :, 1:] |= core[:, :, :-1]
+            grow[:, :, :-1] |= core[:, :, 1:]
+            grow &= clipped
+            if np.array_equal(grow, core):
+                break
+            np.copyto(core, grow)
+        return core.reshape(k, side * side)
 
     def _centre_on_filter(self, n: int, cand: np.ndarray, v: dict, light: np.ndarray) -> None:
         """Centre the saturated stars of a frame whose noise clips at full scale on the
