@@ -59,10 +59,12 @@ fancy indexing, with no Python loop over windows or stars:
    centre would be thrown away, and the trail fit finds its own start along
    the trail (its light's first moment), the vertex holding it across to
    half a pixel. On 16 mm 3 deg/s slews (trails of 3-6 px) the trail fit's
-   centres from the vertex were within 0.02-0.03 px of those from the point
+   centres from the vertex were within 0.01-0.03 px of those from the point
    fit for 90 % of the stars and their RMS against the truth 0.3-0.6 %
-   higher (seeds 13, 21 and 22); the windowed frame's thread CPU 3-5 % lower,
-   the point fit's passes gone from frames whose stars all trail that far.
+   higher (seeds 13, 21 and 22; held out 31 and 32: -0.1 and +0.8 %); the
+   windowed frame's thread CPU 1-5 % lower: the point fit's passes are gone
+   only from frames all of whose stars trail that far (a roll leaves the
+   stars near the boresight short trails, point-fitted).
    Flux (the stamp's sum), peak, npix and SNR (the Gaussian-weighted sum over its noise, as
    tracker.detect.windowed reports it) and the weighted second moments:
    spots narrower than ``detect.sharp_size_ratio`` of the PSF, or narrow
