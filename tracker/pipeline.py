@@ -39,7 +39,9 @@ outside its stages), ``trail``, ``identify.<stage>``.
 Trailed stars: with a rate known, stars whose travel over the exposure
 (from the rate: tracker.identify.predict) is long are re-centred by a
 line-spread fit (tracker.detect.trail), whole frame or windows, and
-detections of one trail that end on one centre are merged.
+detections of one trail that end on one centre are merged. In the stamp
+detector's windows such stars are not point-fitted first (its ``refitted``:
+the fit's centre would be replaced).
 
 Each frame may come with its :class:`~tracker.astrometry.observer.Observer`
 (absolute time, the observer's velocity), which the solver uses to correct
@@ -58,6 +60,7 @@ import logging
 import math
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -319,6 +322,20 @@ class Pipeline:
         stages["trail"] = (time.perf_counter_ns() - t0) / 1e6
         return stars
 
+    def _refitted(self, shape: tuple[int, int], t_ns: int,
+                  exposure_s: float) -> Callable[[np.ndarray], np.ndarray] | None:
+        """The mask (n,) of the stars at frame positions (n, 2) px that :meth:`_untrailed`
+        will fit as trails in a frame of ``shape``, as a function (None: no star of the
+        frame trails far enough)."""
+        longest = self._solver.max_smear_px(t_ns, exposure_s)
+        if longest is None or longest < self._trail.min_length:
+            return None
+
+        def refitted(xy: np.ndarray) -> np.ndarray:
+            return self._trail.fitted(shape, xy, self._solver.smear_px(xy, t_ns, exposure_s),
+                                      longest)
+        return refitted
+
     def _process_windows(self, image: np.ndarray, bit_depth: int, t_ns: int,
                          observer: Observer, exposure_s: float, t0: int,
                          c0: int) -> FrameResult | None:
@@ -340,7 +357,8 @@ class Pipeline:
         t1 = time.perf_counter_ns()
         if stamps:
             detections = self.stamp_detector_for(plan.cell, image, bit_depth).detect(
-                image, plan.origins, full.psf_tracker.current)
+                image, plan.origins, full.psf_tracker.current,
+                self._refitted(image.shape, t_ns, exposure_s))
         else:
             detections = self.window_detector_for(plan.cell, image, bit_depth,
                                                   measure_psf).detect(image, plan.origins)

@@ -59,6 +59,13 @@ def _runs(band: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return band.ravel().nonzero()[0], count.cumsum() - count, count
 
 
+def _box_inside(ixy: np.ndarray, half: int, shape: tuple[int, int]) -> np.ndarray:
+    """Mask (n,) of the boxes of ``half`` px around the pixels ``ixy`` (n, 2) (x, y) that lie
+    inside a frame of ``shape`` (rows, columns)."""
+    h, w = shape[:2]
+    return ((ixy >= half) & (ixy < (w - half, h - half))).all(axis=1)
+
+
 def normal_cdf(z: np.ndarray) -> np.ndarray:
     """Phi(z), the standard normal CDF, to 1.5e-7 (Abramowitz and Stegun 7.1.26 for erf)."""
     return 0.5 + 0.5 * _signed_erf(z, np.exp(-0.5 * z * z))
@@ -140,10 +147,9 @@ class TrailFit:
             return out
         s = self.sigma
         along_half = length[rows] / 2.0 + 3.0 * s + 2.0         # the band, px from the start
-        half = int(math.ceil(float(along_half.max())))         # the box holding every band
-        h, w = image.shape
+        half = self.box_half(float(length[rows].max()))        # the box holding every band
         ixy = np.rint(out[rows]).astype(np.intp)               # (x, y) the box's middle pixel
-        inside = ((ixy >= half) & (ixy < (w - half, h - half))).all(axis=1)
+        inside = _box_inside(ixy, half, image.shape)
         if not inside.all():                # (the usual frame: every box inside, no copies)
             rows, ixy, along_half = rows[inside], ixy[inside], along_half[inside]
             if len(rows) == 0:
@@ -204,6 +210,21 @@ class TrailFit:
         else:
             out[rows[ok]] = c[ok]
         return out
+
+    def box_half(self, longest: float) -> int:
+        """Half the side (px, the middle pixel left out) of the box :meth:`refine` reads
+        around each star when the longest trail it fits is ``longest`` px."""
+        return int(math.ceil(longest / 2.0 + 3.0 * self.sigma + 2.0))
+
+    def fitted(self, shape: tuple[int, int], xy: np.ndarray, smear: np.ndarray,
+               longest: float) -> np.ndarray:
+        """Mask (n,) of the stars at ``xy`` (n, 2) trailed by ``smear`` (n, 2) px that
+        :meth:`refine` fits (rather than leaving at ``xy``) in a frame of ``shape`` (rows,
+        columns) among stars none trailed longer than ``longest`` px: long enough, and
+        their boxes inside the frame (a fitted centre may still stay at ``xy``: one
+        that moves beyond ``max_shift``)."""
+        return ((np.hypot(smear[:, 0], smear[:, 1]) >= self.min_length)
+                & _box_inside(np.rint(xy).astype(np.intp), self.box_half(longest), shape))
 
     def _rim(self, side: int) -> np.ndarray:
         """Flat indices of a square box's border pixels (any order: the sky is their median),
