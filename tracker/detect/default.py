@@ -149,6 +149,13 @@ from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.frame_input import FrameInput, Reason
 from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
 from tracker.detect.layout import PaddedLayout
+from tracker.detect.line_spot import (
+    LINE_RADIUS,
+    LINE_REFERENCE_SNR,
+    LINE_REFERENCE_SPOTS,
+    line_fit,
+    track_spots,
+)
 from tracker.detect.multiplicative import MultiplicativeFit
 from tracker.detect.peaks import PeakFinder
 from tracker.detect.point_spot import (
@@ -1316,6 +1323,9 @@ class DefaultDetector:
             # fainter than the shape tests judge: a hot pixel or a particle's charge the
             # impulse stage spared is a point on its 3 x 3, beyond a star's noise
             sharp |= self._point_like(cand, v, noise, level, ~(judged | saturated | sharp))
+            # a short track under a sharp PSF: elongated and narrower across than the
+            # frame's stars at its own pixel phase (tracker.detect.line_spot)
+            sharp |= self._track_like(cand, v, noise, level, saturated, sharp)
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
@@ -1405,6 +1415,36 @@ class DefaultDetector:
                                np.where(faint, measured, noise[spots]), sigma_px,
                                np.where(faint, shot_adu, SHOT_ADU))
         out[spots] = z > Z_STAR_LOSS
+        return out
+
+    def _track_like(self, cand: np.ndarray, v: dict, noise: np.ndarray, level: np.ndarray,
+                    saturated: np.ndarray, sharp: np.ndarray) -> np.ndarray:
+        """The unsaturated spots not yet found sharp whose 5 x 5 light is a particle's short
+        track, against the frame's bright unsaturated spots' shape under the PSF searched
+        with (tracker.detect.line_spot): (n,) bool. Spots whose 5 x 5 reaches beyond the
+        frame are not tested."""
+        out = np.zeros(len(cand), bool)
+        rows, cols = self.layout.frame_position(cand)
+        ox, oy = np.rint(v["x0"]), np.rint(v["y0"])
+        r = LINE_RADIUS
+        h, w = self.input.shape
+        inside = ((cols + ox >= r) & (rows + oy >= r) & (cols + ox <= w - 1 - r)
+                  & (rows + oy <= h - 1 - r))
+        spots = np.flatnonzero(inside & ~saturated & ~sharp & (v["weighted"] > 0))
+        if len(spots) < LINE_REFERENCE_SPOTS:
+            return out
+        padded, bg = self.input.padded.ravel(), self.bg_pad.ravel()
+        axis = np.arange(-r, r + 1)
+        offsets = (axis[:, None] * self.layout.stride + axis[None, :]).ravel()[None, :]
+        at = (cand[spots] + oy[spots].astype(np.intp) * self.layout.stride
+              + ox[spots].astype(np.intp))[:, None] + offsets
+        light = np.take(padded, at, mode="clip").astype(np.float64)
+        light -= np.take(bg, at, mode="clip")
+        light -= level[spots, None]
+        coef, cov = line_fit(light, v["x0"][spots] - ox[spots], v["y0"][spots] - oy[spots],
+                             noise[spots], self.psf.sigma_px)
+        out[spots] = track_spots(coef, cov, v["snr"][spots] >= LINE_REFERENCE_SNR,
+                                 self.psf.sigma_px)
         return out
 
     def _embedded(self, n: int, cand: np.ndarray, v: dict) -> np.ndarray:
