@@ -220,6 +220,9 @@ _CHUNK = 512                   # stars centroided at a time (bounds the window b
 _CLIP_SIGMAS = 4.0             # full scale this many pixel noises above the background
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
+# a particle's charge (0.45 px) centred within 0.2 px of a pixel's centre stands 2.5-5 x
+# its brightest neighbour: the hits replaced alone, their wings a spot of that peak
+_REMNANT_PEAKS = 2.5
 _SHARPEST_RING = 0.5 * psf_ring(SIGMA_MIN_PX)
 _FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
 _BINNED_SNR = 4.0              # too few bright peaks: 4x4 bins this significant measure it,
@@ -638,6 +641,11 @@ class DefaultDetector:
         timer.start("impulse_refine")
         self._refine_impulses(self.psf.stars > 0 and not binned and self.psf is not few)
         count = self._search()
+        # a particle's hit whose core the impulse stage replaced leaves its wings: a spot
+        # on them is dropped when the core stood _REMNANT_PEAKS times its peak above them
+        count = self._drop_impulses(count, *self.impulses.particle_hits(self.input.padded,
+                                                                        self.bg_pad),
+                                    least=_REMNANT_PEAKS)
         if binned or bound is not None:
             timer.start("impulse_refine")
             count = self._retest_lone(count, self.psf_sigma_used if binned else bound)
@@ -860,11 +868,13 @@ class DefaultDetector:
         self.counters["hot_pixels"] += len(hit)
         return self._drop_impulses(count, hit, excess)
 
-    def _drop_impulses(self, count: int, hit: np.ndarray, excess: np.ndarray) -> int:
+    def _drop_impulses(self, count: int, hit: np.ndarray, excess: np.ndarray,
+                       least: float = 0.5) -> int:
         """Drop the stars of the table (its first ``count``) that were mostly a pixel
         found an impulse since: one of ``hit`` (padded flat indices) in the 3x3 around
-        the star's centre, standing above its median (``excess``, ADU) by at least half
-        the star's peak. Returns the new count."""
+        the star's centre, standing above its median (``excess``, ADU) by at least
+        ``least`` times the star's peak (half: the pixel held most of its light).
+        Returns the new count."""
         if len(hit) == 0 or count == 0:
             return count
         s = self.table.stars
@@ -873,7 +883,7 @@ class DefaultDetector:
         near = centre[:, None] + self.impulses.window_offsets[None, :]
         which = np.searchsorted(hit, near)        # hit is sorted (raster order)
         which = np.minimum(which, len(hit) - 1)
-        on = (hit[which] == near) & (excess[which] >= 0.5 * s["peak"][:count, None])
+        on = (hit[which] == near) & (excess[which] >= least * s["peak"][:count, None])
         keep = np.flatnonzero(~on.any(axis=1))
         if len(keep) == count:
             return count
