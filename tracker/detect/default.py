@@ -56,7 +56,10 @@ handled, sigma 3.5 px):
    error (the focus jumped; wider stars are no particles' charge), the frame
    is searched with theirs (``psf_stars`` 3-4), the estimate carried on
    unchanged. The impulses' second pass and the lone ones' test after the
-   search are timed as ``impulse_refine``, not as ``psf`` or ``centroid``.
+   search are timed as ``impulse_refine``, not as ``psf`` or ``centroid``. A spot
+   found on the wings of a particle's hit whose core the second pass replaced alone
+   (its neighbours hold a diffused charge's wings, and the core stood 2.5 times the
+   spot's peak above them) is dropped after the search.
 5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
    float32 copy (OpenCV's Gaussian is fastest on float32). The background is
    not subtracted from the whole image: the threshold image carries it
@@ -90,9 +93,12 @@ handled, sigma 3.5 px):
    (tracker.detect.spot_shapes); so are fainter spots whose 3 x 3 holds a
    point beyond a star's noise, against a PSF the frame's stars measured
    (else the sharpest the test is made for) and the pixel noise measured on
-   those spots (tracker.detect.point_spot). Maxima on a bright body are masked
-   (tracker.detect.surroundings): too few sky sectors around them, light
-   along a line with sky across it (a crescent, a ghost's ring), or a
+   those spots (tracker.detect.point_spot), and unsaturated spots whose 5 x 5 light
+   is a particle's short track, elongated beyond the frame's stars and narrower
+   across than they are at its own pixel phase (tracker.detect.line_spot: under a
+   sharp PSF a track 1-4 px long is as wide overall as a star). Maxima on a
+   bright body are masked (tracker.detect.surroundings): too few sky sectors
+   around them, light along a line with sky across it (a crescent, a ghost's ring), or a
    clipped plateau shared with another saturated candidate (the Earth's lit
    edge); a star beside the body keeps the sky on its side. With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
