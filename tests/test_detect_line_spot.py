@@ -148,3 +148,4 @@ def test_a_hits_remnant_is_dropped_and_stars_kept():
     stars_found, stars, hits_found, hits = _found_on_grid(_one_pixel_hit, 0.7, (21, 22))
     assert stars_found == stars
     assert hits_found <= 0.1 * hits, (hits_found, hits)
+

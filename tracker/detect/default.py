@@ -58,8 +58,9 @@ handled, sigma 3.5 px):
    unchanged. The impulses' second pass and the lone ones' test after the
    search are timed as ``impulse_refine``, not as ``psf`` or ``centroid``. A spot
    found on the wings of a particle's hit whose core the second pass replaced alone
-   (its neighbours hold a diffused charge's wings, and the core stood 2.5 times the
-   spot's peak above them) is dropped after the search.
+   (its neighbours hold a diffused charge's wings, the spot is centred on it, holds
+   no more light than they do, and the core stood 2.5 times the spot's peak above
+   them) is dropped after the search.
 5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
    float32 copy (OpenCV's Gaussian is fastest on float32). The background is
    not subtracted from the whole image: the threshold image carries it
@@ -229,6 +230,7 @@ _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sha
 # a particle's charge (0.45 px) centred within 0.2 px of a pixel's centre stands 2.5-5 x
 # its brightest neighbour: the hits replaced alone, their wings a spot of that peak
 _REMNANT_PEAKS = 2.5
+_REMNANT_FLUX = 1.5            # ... and they hold up to 1.1 x its excess (noise: 1.5)
 _SHARPEST_RING = 0.5 * psf_ring(SIGMA_MIN_PX)
 _FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
 _BINNED_SNR = 4.0              # too few bright peaks: 4x4 bins this significant measure it,
@@ -648,10 +650,9 @@ class DefaultDetector:
         self._refine_impulses(self.psf.stars > 0 and not binned and self.psf is not few)
         count = self._search()
         # a particle's hit whose core the impulse stage replaced leaves its wings: a spot
-        # on them is dropped when the core stood _REMNANT_PEAKS times its peak above them
-        count = self._drop_impulses(count, *self.impulses.particle_hits(self.input.padded,
-                                                                        self.bg_pad),
-                                    least=_REMNANT_PEAKS)
+        # made of them is dropped
+        count = self._drop_remnants(count, *self.impulses.particle_hits(self.input.padded,
+                                                                        self.bg_pad))
         if binned or bound is not None:
             timer.start("impulse_refine")
             count = self._retest_lone(count, self.psf_sigma_used if binned else bound)
@@ -874,13 +875,11 @@ class DefaultDetector:
         self.counters["hot_pixels"] += len(hit)
         return self._drop_impulses(count, hit, excess)
 
-    def _drop_impulses(self, count: int, hit: np.ndarray, excess: np.ndarray,
-                       least: float = 0.5) -> int:
+    def _drop_impulses(self, count: int, hit: np.ndarray, excess: np.ndarray) -> int:
         """Drop the stars of the table (its first ``count``) that were mostly a pixel
         found an impulse since: one of ``hit`` (padded flat indices) in the 3x3 around
-        the star's centre, standing above its median (``excess``, ADU) by at least
-        ``least`` times the star's peak (half: the pixel held most of its light).
-        Returns the new count."""
+        the star's centre, standing above its median (``excess``, ADU) by at least half
+        the star's peak. Returns the new count."""
         if len(hit) == 0 or count == 0:
             return count
         s = self.table.stars
@@ -889,8 +888,35 @@ class DefaultDetector:
         near = centre[:, None] + self.impulses.window_offsets[None, :]
         which = np.searchsorted(hit, near)        # hit is sorted (raster order)
         which = np.minimum(which, len(hit) - 1)
-        on = (hit[which] == near) & (excess[which] >= least * s["peak"][:count, None])
+        on = (hit[which] == near) & (excess[which] >= 0.5 * s["peak"][:count, None])
         keep = np.flatnonzero(~on.any(axis=1))
+        if len(keep) == count:
+            return count
+        s[:len(keep)] = s[keep]
+        return len(keep)
+
+    def _drop_remnants(self, count: int, hit: np.ndarray, excess: np.ndarray) -> int:
+        """Drop the stars of the table (its first ``count``) that are a particle's hit's
+        wings: the pixel nearest the star's centre is one of ``hit`` (padded flat
+        indices, ascending: tracker.detect.impulse.ImpulseFilter.particle_hits), which
+        stood above its median by ``excess`` (ADU) of at least ``_REMNANT_PEAKS`` times
+        the star's peak, and the star's flux is no more than ``_REMNANT_FLUX`` times
+        that excess. Returns the new count.
+
+        The wings of a charge diffused by 0.45 px about a point within 0.2 px of a
+        pixel's centre (one the contrast test replaces alone) are centred on that
+        pixel, hold 0.9-1.1 times its excess, and peak at 0.2-0.4 of it; a star a
+        particle hit has its own light besides, and the hit is anywhere on it.
+        """
+        if len(hit) == 0 or count == 0:
+            return count
+        s = self.table.stars
+        centre = self.layout.flat_index(np.rint(s["y"][:count]).astype(np.intp),
+                                        np.rint(s["x"][:count]).astype(np.intp))
+        which = np.minimum(np.searchsorted(hit, centre), len(hit) - 1)
+        wings = ((hit[which] == centre) & (excess[which] >= _REMNANT_PEAKS * s["peak"][:count])
+                 & (s["flux"][:count] <= _REMNANT_FLUX * excess[which]))
+        keep = np.flatnonzero(~wings)
         if len(keep) == count:
             return count
         s[:len(keep)] = s[keep]
