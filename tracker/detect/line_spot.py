@@ -30,10 +30,13 @@ width across) and below it for a track.
 A spot is a track (:func:`track_spots`) when its shear differs from the
 frame's stars' (the median over its bright unsaturated spots) by more than
 :data:`Z_LINE` standard errors (chi-square of two degrees of freedom: a
-star's chance 1 in 10^4), that difference is :data:`_FIELD_SHEAR` of the
-PSF's variance beyond what the lens's field may change a star by, and its
-light across is narrower than the stars' by :data:`Z_ACROSS` standard
-errors. Each pixel's variance is noise^2 + g a P (the background's and the
+star's chance 1 in 10^4; each standard error includes :data:`_FIELD_SHEAR`
+of the PSF's variance, what the lens's field may change a star by), by
+more than :data:`_LINE_SHEAR` of that variance (a track at least 1.5 px
+long under a sharp PSF), and its light across is narrower than the stars'
+by :data:`Z_ACROSS` standard errors (a star a track touches keeps its own
+width across: at 2 a star with a track 1.5 px from its centre was lost).
+Each pixel's variance is noise^2 + g a P (the background's and the
 star's own shot noise, g ADU^2 per ADU: tracker.detect.significance's
 convention). The frame's stars set the reference only when at least
 :data:`LINE_REFERENCE_SPOTS` of them are bright, and a frame whose stars are
@@ -61,8 +64,9 @@ __all__ = ["LINE_RADIUS", "LINE_REFERENCE_SNR", "LINE_REFERENCE_SPOTS", "Z_ACROS
 
 LINE_RADIUS = 2                # the 5 x 5 pixels around the spot's central pixel
 Z_LINE = math.sqrt(-2.0 * math.log(1e-4))   # chi(2) at a star's chance of 1 in 10^4: 4.29
-Z_ACROSS = 2.0                 # ... and narrower across than the frame's stars by this
+Z_ACROSS = 3.0                 # ... and narrower across than the frame's stars by this
 _FIELD_SHEAR = 0.05            # a star's shear varies across the field by this x sigma^2
+_LINE_SHEAR = 0.25             # a track's shear beyond the stars' is at least this x sigma^2
 LINE_REFERENCE_SNR = 30.0          # spots this significant, unsaturated, set the stars' shear
 LINE_REFERENCE_SPOTS = 5           # ... when there are at least this many
 _TRAILED_SHEAR = 0.25          # the stars' shear over sigma^2 beyond this: a trailed frame
@@ -170,4 +174,5 @@ def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
     across_var = np.einsum("mk,mkl,ml->m", across, cov, across) / np.square(
         np.where(fit, flux, 1.0))
     z_across = (across_ref - across_value) / np.sqrt(across_var + field)
-    return fit & (z_shear > Z_LINE) & (z_across > Z_ACROSS)
+    shear = np.hypot(diff[:, 0], diff[:, 1])
+    return fit & (z_shear > Z_LINE) & (z_across > Z_ACROSS) & (shear > _LINE_SHEAR * variance)
