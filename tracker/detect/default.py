@@ -56,7 +56,11 @@ handled, sigma 3.5 px):
    error (the focus jumped; wider stars are no particles' charge), the frame
    is searched with theirs (``psf_stars`` 3-4), the estimate carried on
    unchanged. The impulses' second pass and the lone ones' test after the
-   search are timed as ``impulse_refine``, not as ``psf`` or ``centroid``.
+   search are timed as ``impulse_refine``, not as ``psf`` or ``centroid``. A spot
+   found on the wings of a particle's hit whose core the second pass replaced alone
+   (its neighbours hold a diffused charge's wings, the spot is centred on it, holds
+   no more light than they do, and the core stood 2.5 times the spot's peak above
+   them) is dropped after the search.
 5. ``filter``: Gaussian of the PSF's sigma (the matched filter), on a
    float32 copy (OpenCV's Gaussian is fastest on float32). The background is
    not subtracted from the whole image: the threshold image carries it
@@ -90,9 +94,12 @@ handled, sigma 3.5 px):
    (tracker.detect.spot_shapes); so are fainter spots whose 3 x 3 holds a
    point beyond a star's noise, against a PSF the frame's stars measured
    (else the sharpest the test is made for) and the pixel noise measured on
-   those spots (tracker.detect.point_spot). Maxima on a bright body are masked
-   (tracker.detect.surroundings): too few sky sectors around them, light
-   along a line with sky across it (a crescent, a ghost's ring), or a
+   those spots (tracker.detect.point_spot), and unsaturated spots whose 5 x 5 light
+   is a particle's short track, elongated beyond the frame's stars and narrower
+   across than they are at its own pixel phase (tracker.detect.line_spot: under a
+   sharp PSF a track 1-4 px long is as wide overall as a star). Maxima on a
+   bright body are masked (tracker.detect.surroundings): too few sky sectors
+   around them, light along a line with sky across it (a crescent, a ghost's ring), or a
    clipped plateau shared with another saturated candidate (the Earth's lit
    edge); a star beside the body keeps the sky on its side. With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
@@ -149,6 +156,13 @@ from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.frame_input import FrameInput, Reason
 from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
 from tracker.detect.layout import PaddedLayout
+from tracker.detect.line_spot import (
+    LINE_RADIUS,
+    LINE_REFERENCE_SNR,
+    LINE_REFERENCE_SPOTS,
+    line_fit,
+    track_spots,
+)
 from tracker.detect.multiplicative import MultiplicativeFit
 from tracker.detect.peaks import PeakFinder
 from tracker.detect.point_spot import (
@@ -210,9 +224,14 @@ _PLATEAU_STARS = 64            # saturated stars centred on their clipped core, 
 _PLATEAU_FILL = 0.7            # ... when its radius is this much of the window's
 _PLATEAU_PAIRS = 65536         # pairs of saturated candidates judged for sharing a plateau
 _CHUNK = 512                   # stars centroided at a time (bounds the window buffers)
+_LINE_CHUNK = 32               # spots fitted at a time by the short-track test
 _CLIP_SIGMAS = 4.0             # full scale this many pixel noises above the background
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
+# a particle's charge (0.45 px) centred within 0.2 px of a pixel's centre stands 2.5-5 x
+# its brightest neighbour: the hits replaced alone, their wings a spot of that peak
+_REMNANT_PEAKS = 2.5
+_REMNANT_FLUX = 1.5            # ... and they hold up to 1.1 x its excess (noise: 1.5)
 _SHARPEST_RING = 0.5 * psf_ring(SIGMA_MIN_PX)
 _FIRST_PASS_SIGMA_PX = 0.55    # ... and before it is measured, against this one
 _BINNED_SNR = 4.0              # too few bright peaks: 4x4 bins this significant measure it,
@@ -634,6 +653,10 @@ class DefaultDetector:
         timer.start("impulse_refine")
         self._refine_impulses(self.psf.stars > 0 and not binned and self.psf is not few)
         count = self._search()
+        # a particle's hit whose core the impulse stage replaced leaves its wings: a spot
+        # made of them is dropped
+        count = self._drop_remnants(count, *self.impulses.particle_hits(self.input.padded,
+                                                                        self.bg_pad))
         if binned or bound is not None:
             timer.start("impulse_refine")
             count = self._retest_lone(count, self.psf_sigma_used if binned else bound)
@@ -871,6 +894,33 @@ class DefaultDetector:
         which = np.minimum(which, len(hit) - 1)
         on = (hit[which] == near) & (excess[which] >= 0.5 * s["peak"][:count, None])
         keep = np.flatnonzero(~on.any(axis=1))
+        if len(keep) == count:
+            return count
+        s[:len(keep)] = s[keep]
+        return len(keep)
+
+    def _drop_remnants(self, count: int, hit: np.ndarray, excess: np.ndarray) -> int:
+        """Drop the stars of the table (its first ``count``) that are a particle's hit's
+        wings: the pixel nearest the star's centre is one of ``hit`` (padded flat
+        indices, ascending: tracker.detect.impulse.ImpulseFilter.particle_hits), which
+        stood above its median by ``excess`` (ADU) of at least ``_REMNANT_PEAKS`` times
+        the star's peak, and the star's flux is no more than ``_REMNANT_FLUX`` times
+        that excess. Returns the new count.
+
+        The wings of a charge diffused by 0.45 px about a point within 0.2 px of a
+        pixel's centre (one the contrast test replaces alone) are centred on that
+        pixel, hold 0.9-1.1 times its excess, and peak at 0.2-0.4 of it; a star a
+        particle hit has its own light besides, and the hit is anywhere on it.
+        """
+        if len(hit) == 0 or count == 0:
+            return count
+        s = self.table.stars
+        centre = self.layout.flat_index(np.rint(s["y"][:count]).astype(np.intp),
+                                        np.rint(s["x"][:count]).astype(np.intp))
+        which = np.minimum(np.searchsorted(hit, centre), len(hit) - 1)
+        wings = ((hit[which] == centre) & (excess[which] >= _REMNANT_PEAKS * s["peak"][:count])
+                 & (s["flux"][:count] <= _REMNANT_FLUX * excess[which]))
+        keep = np.flatnonzero(~wings)
         if len(keep) == count:
             return count
         s[:len(keep)] = s[keep]
@@ -1350,6 +1400,9 @@ class DefaultDetector:
             # fainter than the shape tests judge: a hot pixel or a particle's charge the
             # impulse stage spared is a point on its 3 x 3, beyond a star's noise
             sharp |= self._point_like(cand, v, noise, level, ~(judged | saturated | sharp))
+            # a short track under a sharp PSF: elongated and narrower across than the
+            # frame's stars at its own pixel phase (tracker.detect.line_spot)
+            sharp |= self._track_like(cand, v, noise, level, saturated, sharp)
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
@@ -1439,6 +1492,42 @@ class DefaultDetector:
                                np.where(faint, measured, noise[spots]), sigma_px,
                                np.where(faint, shot_adu, SHOT_ADU))
         out[spots] = z > Z_STAR_LOSS
+        return out
+
+    def _track_like(self, cand: np.ndarray, v: dict, noise: np.ndarray, level: np.ndarray,
+                    saturated: np.ndarray, sharp: np.ndarray) -> np.ndarray:
+        """The unsaturated spots not yet found sharp whose 5 x 5 light is a particle's short
+        track, against the frame's bright unsaturated spots' shape under the PSF searched
+        with (tracker.detect.line_spot): (n,) bool. Spots whose 5 x 5 reaches beyond the
+        frame are not tested."""
+        out = np.zeros(len(cand), bool)
+        rows, cols = self.layout.frame_position(cand)
+        ox, oy = np.rint(v["x0"]), np.rint(v["y0"])
+        r = LINE_RADIUS
+        h, w = self.input.shape
+        inside = ((cols + ox >= r) & (rows + oy >= r) & (cols + ox <= w - 1 - r)
+                  & (rows + oy <= h - 1 - r))
+        spots = np.flatnonzero(inside & ~saturated & ~sharp & (v["weighted"] > 0))
+        if len(spots) < LINE_REFERENCE_SPOTS:
+            return out
+        padded, bg = self.input.padded.ravel(), self.bg_pad.ravel()
+        axis = np.arange(-r, r + 1)
+        offsets = (axis[:, None] * self.layout.stride + axis[None, :]).ravel()[None, :]
+        coef = np.zeros((len(spots), 6))
+        cov = np.zeros((len(spots), 6, 6))
+        # _LINE_CHUNK spots at a time: the fit's (m, 25, 6) arrays stay small
+        for first in range(0, len(spots), _LINE_CHUNK):
+            part = spots[first:first + _LINE_CHUNK]
+            at = (cand[part] + oy[part].astype(np.intp) * self.layout.stride
+                  + ox[part].astype(np.intp))[:, None] + offsets
+            light = np.take(padded, at, mode="clip").astype(np.float64)
+            light -= np.take(bg, at, mode="clip")
+            light -= level[part, None]
+            coef[first:first + len(part)], cov[first:first + len(part)] = line_fit(
+                light, v["x0"][part] - ox[part], v["y0"][part] - oy[part], noise[part],
+                self.psf.sigma_px)
+        out[spots] = track_spots(coef, cov, v["snr"][spots] >= LINE_REFERENCE_SNR,
+                                 self.psf.sigma_px)
         return out
 
     def _embedded(self, n: int, cand: np.ndarray, v: dict) -> np.ndarray:

@@ -123,6 +123,8 @@ _GROW_STEPS = 2        # rounds of adding the neighbours of replaced pixels
 _GROW_LIMIT = 0.5      # ... tested against this fraction of the first pass's limit
 _TRACK_REMNANT = 0.2   # a track pixel whose replacement keeps under this of its height: sky
 _CUT_ROWS = 32         # rows of the first cut's difference made and compared at a time
+_CHARGE_DIFFUSION_PX = 0.45   # a particle's charge spreads by this (Gaussian sigma) ...
+_WING_SHARE = 0.5      # ... and a hit's neighbours hold at least this of what that puts there
 
 
 class ImpulseFilter:
@@ -204,6 +206,7 @@ class ImpulseFilter:
         self.counts = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0}
         self._median_wait = None
         self._listed = 0   # the last cut's candidates
+        self._refined = 0  # the last refine's candidates, grown ones included
 
     def start_median(self, work: np.ndarray) -> None:
         """Begin the 3x3 median of ``work`` (the frame :meth:`cut` will be given, already
@@ -242,7 +245,7 @@ class ImpulseFilter:
         counts = self.counts
         for key in counts:
             counts[key] = 0
-        self._n = 0
+        self._n = self._refined = 0
         self._dense = False
         n = self._listed
         if n == 0:
@@ -350,7 +353,38 @@ class ImpulseFilter:
         if mirror_pad is not None:
             self._mirror(self.index[:n], self.reads[:n], work_pad, mirror_pad)
         self._clear_tracks(n, work_pad, bg_pad, limit_pad, mirror_pad)
+        self._refined = n
         return self.counts
+
+    def particle_hits(self, work_pad: np.ndarray, bg_pad: np.ndarray) -> tuple[np.ndarray,
+                                                                             np.ndarray]:
+        """The pixels the last :meth:`refine` replaced for added charge whose eight
+        neighbours still hold a particle's diffused charge (padded flat indices,
+        ascending), and how far each first stood above the median that replaced it, ADU
+        (:meth:`retest_lone`'s convention).
+
+        A particle's charge diffuses by about 0.45 px: its eight neighbours hold at
+        least ``psf_ring(0.45)`` (0.86) of its core's height, a hot pixel's nothing.
+        Where the core was replaced as a lone impulse those wings are left, and a spot
+        found on them is the hit's remnant, not a star; a pixel whose neighbours now
+        hold under ``_WING_SHARE`` of that (half: their noise and the median's share
+        of them) had no wings, and a star under it is a star. Empty before
+        :meth:`refine` or after a whole-frame pass.
+        """
+        n = self._refined
+        k = int(np.count_nonzero(self.charge[:n]))
+        hit = np.compress(self.charge[:n], self.index[:n])
+        # first height above the background less the median's: the first value less it
+        excess = np.compress(self.charge[:n], self.height[:n]
+                             - (self.values[1, :n] - self.values[2, :n]))
+        window = self.area[: 8 * k].reshape(k, 8)
+        np.add(hit[:, None], self.neighbour_offsets[None, :], out=window)
+        wings = (np.take(work_pad.ravel(), window, mode="clip").astype(np.float32).sum(axis=1)
+                 - 8.0 * np.take(bg_pad.ravel(), hit, mode="clip"))
+        particle = wings >= _WING_SHARE * psf_ring(_CHARGE_DIFFUSION_PX) * excess
+        hit, excess = hit[particle], excess[particle]
+        order = np.argsort(hit, kind="stable")
+        return hit[order], excess[order]
 
     def retest_lone(self, work_pad: np.ndarray, contrast: float, ring: float,
                     mirror_pad: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
