@@ -13,7 +13,7 @@ from spot_grid import SHAPE, SKY_E, found, grid_centres, sensor_frame, spot
 
 from tracker.config import DetectConfig
 from tracker.detect import make_detector
-from tracker.detect.line_spot import _cholesky_inverse, line_fit, track_spots
+from tracker.detect.line_spot import _solve, line_fit, track_spots
 
 _DIFFUSION_PX = 0.45    # a particle's charge cloud (tracker.sim.scene.particle_tracks)
 _NOISE_ADU = 3.0
@@ -63,11 +63,16 @@ def _stars_and_tracks(sigma_px: float, snr: float, length_px: tuple[float, float
     return out[:stars], out[stars:]
 
 
-def test_cholesky_inverse_matches_numpy():
+def test_solve_matches_numpy():
+    """The solutions and the inverses' second-order block of positive definite systems
+    as conditioned as the fit's (a sharp to a wide PSF's basis) agree with LAPACK's."""
     rng = np.random.default_rng(1)
-    a = rng.normal(size=(20, 6, 9))
+    a = rng.normal(size=(20, 6, 9)) * np.logspace(0.0, -3.0, 6)[None, :, None]
     gram = np.einsum("mik,mjk->mij", a, a)
-    assert np.allclose(_cholesky_inverse(gram), np.linalg.inv(gram), rtol=1e-9, atol=1e-12)
+    rhs = rng.normal(size=(20, 6))
+    coef, block = _solve(gram, rhs)
+    assert np.allclose(coef, np.linalg.solve(gram, rhs[:, :, None])[:, :, 0], rtol=1e-9)
+    assert np.allclose(block, np.linalg.inv(gram)[:, 3:, 3:], rtol=1e-9)
 
 
 def test_stars_pass_and_short_tracks_fail_under_a_sharp_psf():

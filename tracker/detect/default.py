@@ -224,7 +224,7 @@ _PLATEAU_STARS = 64            # saturated stars centred on their clipped core, 
 _PLATEAU_FILL = 0.7            # ... when its radius is this much of the window's
 _PLATEAU_PAIRS = 65536         # pairs of saturated candidates judged for sharing a plateau
 _CHUNK = 512                   # stars centroided at a time (bounds the window buffers)
-_LINE_CHUNK = 32               # spots fitted at a time by the short-track test
+_LINE_CHUNK = 96               # spots fitted at a time by the short-track test
 _CLIP_SIGMAS = 4.0             # full scale this many pixel noises above the background
 _SATURATED_TILE = 0.9          # a tile this close to saturation is lit ground, not sky
 _IMPULSE_PSF_MARGIN = 0.9      # impulses are judged against a PSF this much sharper
@@ -1513,19 +1513,20 @@ class DefaultDetector:
         padded, bg = self.input.padded.ravel(), self.bg_pad.ravel()
         axis = np.arange(-r, r + 1)
         offsets = (axis[:, None] * self.layout.stride + axis[None, :]).ravel()[None, :]
+        centre = (cand[spots] + oy[spots].astype(np.intp) * self.layout.stride
+                  + ox[spots].astype(np.intp))
+        phase_x, phase_y = v["x0"][spots] - ox[spots], v["y0"][spots] - oy[spots]
         coef = np.zeros((len(spots), 6))
-        cov = np.zeros((len(spots), 6, 6))
-        # _LINE_CHUNK spots at a time: the fit's (m, 25, 6) arrays stay small
+        cov = np.zeros((len(spots), 3, 3))
+        # _LINE_CHUNK spots at a time: the fit's (m, 6, 25) basis stays small
         for first in range(0, len(spots), _LINE_CHUNK):
-            part = spots[first:first + _LINE_CHUNK]
-            at = (cand[part] + oy[part].astype(np.intp) * self.layout.stride
-                  + ox[part].astype(np.intp))[:, None] + offsets
+            part = slice(first, first + _LINE_CHUNK)
+            at = centre[part, None] + offsets
             light = np.take(padded, at, mode="clip").astype(np.float64)
             light -= np.take(bg, at, mode="clip")
-            light -= level[part, None]
-            coef[first:first + len(part)], cov[first:first + len(part)] = line_fit(
-                light, v["x0"][part] - ox[part], v["y0"][part] - oy[part], noise[part],
-                self.psf.sigma_px)
+            light -= level[spots[part], None]
+            coef[part], cov[part] = line_fit(light, phase_x[part], phase_y[part],
+                                             noise[spots[part]], self.psf.sigma_px)
         out[spots] = track_spots(coef, cov, v["snr"][spots] >= LINE_REFERENCE_SNR,
                                  self.psf.sigma_px)
         return out

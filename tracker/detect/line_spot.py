@@ -44,7 +44,7 @@ trailed (their shear over the PSF's variance beyond
 :data:`_TRAILED_SHEAR`) is not tested: a trail is no second-order change of
 the PSF.
 
-The 6 x 6 normal equations are solved by a Cholesky factorisation written
+The 6 x 6 normal equations are solved by Gauss-Jordan elimination written
 out over the spots (no LAPACK call, whose BLAS threads would spin on the
 core the detector's own slab thread runs on).
 """
@@ -73,55 +73,56 @@ _TRAILED_SHEAR = 0.25          # the stars' shear over sigma^2 beyond this: a tr
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 
 
-def _pixel_terms(offset: np.ndarray, sigma_px: float) -> tuple[np.ndarray, ...]:
-    """A unit Gaussian of ``sigma_px`` integrated over unit pixels, and its first and
-    second derivatives by the centre: ``offset`` (m, k) is each pixel's centre less
-    the Gaussian's, px."""
-    u = np.stack([offset - 0.5, offset + 0.5]) / sigma_px       # (2, m, k) edges
+def _axis_terms(phase: np.ndarray, sigma_px: float) -> np.ndarray:
+    """(m, 3, 5): a unit Gaussian of ``sigma_px`` integrated over the 5 unit pixels of
+    one axis, and its first and second derivatives by the centre; ``phase`` (m,) is the
+    centre's offset from the middle pixel's centre, px. The 6 pixel edges are shared."""
+    edges = np.arange(-LINE_RADIUS - 0.5, LINE_RADIUS + 1.0) - phase[:, None]
+    u = edges / sigma_px                                        # (m, 6)
     pdf = np.exp(-0.5 * u * u) / _SQRT_2PI
-    cdf = 0.5 * (1.0 + erf(u / math.sqrt(2.0)))
-    return (cdf[1] - cdf[0], -(pdf[1] - pdf[0]) / sigma_px,
-            -(u[1] * pdf[1] - u[0] * pdf[0]) / sigma_px ** 2)
+    terms = np.stack([0.5 * erf(u / math.sqrt(2.0)), -pdf / sigma_px,
+                      -u * pdf / sigma_px ** 2], axis=1)         # (m, 3, 6) at the edges
+    return terms[:, :, 1:] - terms[:, :, :-1]
+
+
+# the basis P, Px, Py, Pxx, Pxy, Pyy as (y term, x term) of :func:`_axis_terms`
+_ROW_TERMS = [0, 0, 1, 0, 1, 2]
+_COL_TERMS = [0, 1, 0, 2, 1, 0]
 
 
 def _basis(phase_x: np.ndarray, phase_y: np.ndarray, sigma_px: float) -> np.ndarray:
-    """(m, 25, 6): P, Px, Py, Pxx, Pxy, Pyy on each spot's 5 x 5, row-major."""
-    axis = np.arange(-LINE_RADIUS, LINE_RADIUS + 1, dtype=np.float64)
-    fx, dx, ddx = _pixel_terms(axis[None, :] - phase_x[:, None], sigma_px)
-    fy, dy, ddy = _pixel_terms(axis[None, :] - phase_y[:, None], sigma_px)
-    m, k = len(phase_x), len(axis)
-    out = np.empty((m, k * k, 6))
-    for j, (row, col) in enumerate(((fy, fx), (fy, dx), (dy, fx), (fy, ddx), (dy, dx),
-                                    (ddy, fx))):
-        out[:, :, j] = (row[:, :, None] * col[:, None, :]).reshape(m, k * k)
-    return out
+    """(m, 6, 25): P, Px, Py, Pxx, Pxy, Pyy on each spot's 5 x 5, row-major."""
+    m = len(phase_x)
+    terms = _axis_terms(np.concatenate([phase_x, phase_y]), sigma_px)
+    rows = terms[m:, _ROW_TERMS]                                 # (m, 6, 5)
+    cols = terms[:m, _COL_TERMS]
+    return (rows[:, :, :, None] * cols[:, :, None, :]).reshape(m, 6, -1)
 
 
-def _cholesky_inverse(gram: np.ndarray) -> np.ndarray:
-    """Inverses (m, k, k) of symmetric positive definite ``gram`` (m, k, k), by a
-    Cholesky factorisation over the spots at once (no LAPACK)."""
+_SECOND = slice(3, 6)       # hxx, hxy, hyy among the coefficients
+
+
+def _solve(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Solutions (m, 6) of symmetric positive definite ``gram`` (m, 6, 6) against
+    ``rhs`` (m, 6), and the block (m, 3, 3) of the inverses over the second-order
+    coefficients, by Gauss-Jordan elimination over the spots at once (no LAPACK;
+    a positive definite matrix needs no pivoting)."""
     m, k, _ = gram.shape
-    low = np.zeros_like(gram)
+    unit = np.zeros((k, 3))
+    unit[_SECOND] = np.eye(3)
+    aug = np.concatenate([gram, rhs[:, :, None], np.broadcast_to(unit, (m, k, 3))], axis=2)
     for j in range(k):
-        d = gram[:, j, j] - np.einsum("mi,mi->m", low[:, j, :j], low[:, j, :j])
-        low[:, j, j] = np.sqrt(np.maximum(d, 1e-300))
-        for i in range(j + 1, k):
-            low[:, i, j] = (gram[:, i, j] - np.einsum("mi,mi->m", low[:, i, :j],
-                                                      low[:, j, :j])) / low[:, j, j]
-    # inverse of the lower factor by forward substitution, then inv = L^-T L^-1
-    inv_low = np.zeros_like(gram)
-    for j in range(k):
-        inv_low[:, j, j] = 1.0 / low[:, j, j]
-        for i in range(j + 1, k):
-            inv_low[:, i, j] = -np.einsum("mr,mr->m", low[:, i, j:i],
-                                          inv_low[:, j:i, j]) / low[:, i, i]
-    return np.einsum("mri,mrj->mij", inv_low, inv_low)
+        pivot = aug[:, j, j:] / aug[:, j, j, None]
+        aug[:, :, j:] -= aug[:, :, j, None] * pivot[:, None, :]
+        aug[:, j, j:] = pivot
+    return aug[:, :, k], aug[:, _SECOND, k + 1:]
 
 
 def line_fit(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarray,
              noise: np.ndarray, sigma_px: float,
              shot_adu: float = SHOT_ADU) -> tuple[np.ndarray, np.ndarray]:
-    """The model's coefficients (m, 6) and their covariance (m, 6, 6) (module docstring).
+    """The model's coefficients (m, 6) and the covariance (m, 3, 3) of its second-order
+    ones, hxx, hxy, hyy (module docstring).
 
     ``light``: (m, 25) background-subtracted ADU of the 5 x 5 pixels around
     the pixel nearest each spot's centre, row-major; ``phase_x``, ``phase_y``:
@@ -129,12 +130,13 @@ def line_fit(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarray,
     pixel noise without the spot's light, ADU; ``sigma_px``: the frame's PSF sigma.
     """
     basis = _basis(np.asarray(phase_x, float), np.asarray(phase_y, float), sigma_px)
-    p = basis[:, :, 0]
+    p = basis[:, 0]
     flux = np.maximum(np.einsum("mi,mi->m", p, light) / np.einsum("mi,mi->m", p, p), 0.0)
-    weight = 1.0 / (np.square(noise)[:, None] + (shot_adu * flux)[:, None] * p)
-    cov = _cholesky_inverse(np.einsum("mik,mi,mil->mkl", basis, weight, basis))
-    coef = np.einsum("mkl,mil,mi,mi->mk", cov, basis, weight, light)
-    return coef, cov
+    # each pixel's terms and light over its noise: the normal equations' weights
+    root_weight = 1.0 / np.sqrt(np.square(noise)[:, None] + (shot_adu * flux)[:, None] * p)
+    basis *= root_weight[:, None, :]
+    return _solve(np.einsum("mki,mli->mkl", basis, basis),
+                  np.einsum("mki,mi->mk", basis, light * root_weight))
 
 
 def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
@@ -148,9 +150,10 @@ def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
     out = np.zeros(m, bool)
     flux = coef[:, 0]
     fit = flux > 0.0
-    # (dCxx - dCyy) / 2, dCxy and (dCxx + dCyy) / 2 as combinations of the coefficients
-    combos = np.array([[0, 0, 0, 1, 0, -1], [0, 0, 0, 0, 1, 0], [0, 0, 0, 1, 0, 1]], float)
-    value = np.einsum("jk,mk->mj", combos, coef) / np.where(fit, flux, 1.0)[:, None]
+    scale = 1.0 / np.where(fit, flux, 1.0)
+    # (dCxx - dCyy) / 2, dCxy and (dCxx + dCyy) / 2 as combinations of hxx, hxy, hyy
+    combos = np.array([[1, 0, -1], [0, 1, 0], [1, 0, 1]], float)
+    value = np.einsum("jk,mk->mj", combos, coef[:, _SECOND]) * scale[:, None]
     ref = reference & fit
     if np.count_nonzero(ref) < LINE_REFERENCE_SPOTS:
         return out
@@ -159,8 +162,7 @@ def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
     if math.hypot(stars[0], stars[1]) > _TRAILED_SHEAR * variance:
         return out
     diff = value - stars[None, :]
-    var = np.einsum("jk,mkl,jl->mj", combos, cov, combos) / np.square(
-        np.where(fit, flux, 1.0))[:, None]
+    var = np.einsum("jk,mkl,jl->mj", combos[:2], cov, combos[:2]) * np.square(scale)[:, None]
     field = (_FIELD_SHEAR * variance) ** 2
     z_shear = np.hypot(diff[:, 0] / np.sqrt(var[:, 0] + field),
                        diff[:, 1] / np.sqrt(var[:, 1] + field))
@@ -168,11 +170,10 @@ def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
     # angle 2t; dC_nn / 2 = nx^2 hxx + nx ny hxy + ny^2 hyy over the flux
     angle = 0.5 * np.arctan2(diff[:, 1], diff[:, 0])
     nx, ny = -np.sin(angle), np.cos(angle)
-    across = np.stack([np.zeros(m)] * 3 + [nx * nx, nx * ny, ny * ny], axis=1)
-    across_value = np.einsum("mk,mk->m", across, coef) / np.where(fit, flux, 1.0)
+    across = np.stack([nx * nx, nx * ny, ny * ny], axis=1)
+    across_value = np.einsum("mk,mk->m", across, coef[:, _SECOND]) * scale
     across_ref = (stars[2] - np.cos(2 * angle) * stars[0] - np.sin(2 * angle) * stars[1]) / 2
-    across_var = np.einsum("mk,mkl,ml->m", across, cov, across) / np.square(
-        np.where(fit, flux, 1.0))
+    across_var = np.einsum("mk,mkl,ml->m", across, cov, across) * np.square(scale)
     z_across = (across_ref - across_value) / np.sqrt(across_var + field)
     shear = np.hypot(diff[:, 0], diff[:, 1])
     return fit & (z_shear > Z_LINE) & (z_across > Z_ACROSS) & (shear > _LINE_SHEAR * variance)
