@@ -96,7 +96,7 @@ def _basis(phase_x: np.ndarray, phase_y: np.ndarray, sigma_px: float) -> np.ndar
     terms = _axis_terms(np.concatenate([phase_x, phase_y]), sigma_px)
     rows = terms[m:, _ROW_TERMS]                                 # (m, 6, 5)
     cols = terms[:m, _COL_TERMS]
-    return (rows[:, :, :, None] * cols[:, :, None, :]).reshape(m, 6, -1)
+    return np.einsum("mky,mkx->mkyx", rows, cols).reshape(m, 6, -1)
 
 
 _SECOND = slice(3, 6)       # hxx, hxy, hyy among the coefficients
