@@ -100,6 +100,7 @@ def _basis(phase_x: np.ndarray, phase_y: np.ndarray, sigma_px: float) -> np.ndar
 
 
 _SECOND = slice(3, 6)       # hxx, hxy, hyy among the coefficients
+_SECOND_UNIT = np.eye(6)[:, _SECOND]    # their columns of the identity
 
 
 def _solve(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -108,13 +109,12 @@ def _solve(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     coefficients, by Gauss-Jordan elimination over the spots at once (no LAPACK;
     a positive definite matrix needs no pivoting)."""
     m, k, _ = gram.shape
-    unit = np.zeros((k, 3))
-    unit[_SECOND] = np.eye(3)
-    aug = np.concatenate([gram, rhs[:, :, None], np.broadcast_to(unit, (m, k, 3))], axis=2)
+    aug = np.concatenate([gram, rhs[:, :, None], np.broadcast_to(_SECOND_UNIT, (m, k, 3))],
+                         axis=2)
     for j in range(k):
-        pivot = aug[:, j, j:] / aug[:, j, j, None]
-        aug[:, :, j:] -= aug[:, :, j, None] * pivot[:, None, :]
-        aug[:, j, j:] = pivot
+        row = aug[:, j, j:] / aug[:, j, j, None]
+        aug[:, :, j:] -= aug[:, :, j, None] * row[:, None, :]
+        aug[:, j, j:] = row
     return aug[:, :, k], aug[:, _SECOND, k + 1:]
 
 
