@@ -70,7 +70,7 @@ def test_solve_matches_numpy():
     a = rng.normal(size=(20, 6, 9)) * np.logspace(0.0, -3.0, 6)[None, :, None]
     gram = np.einsum("mik,mjk->mij", a, a)
     rhs = rng.normal(size=(20, 6))
-    coef, block = _solve(gram, rhs)
+    coef, block = _solve(gram.transpose(1, 2, 0), rhs.T)
     assert np.allclose(coef, np.linalg.solve(gram, rhs[:, :, None])[:, :, 0], rtol=1e-9)
     assert np.allclose(block, np.linalg.inv(gram)[:, 3:, 3:], rtol=1e-9)
 

@@ -104,18 +104,21 @@ _SECOND_UNIT = np.eye(6)[:, _SECOND]    # their columns of the identity
 
 
 def _solve(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Solutions (m, 6) of symmetric positive definite ``gram`` (m, 6, 6) against
-    ``rhs`` (m, 6), and the block (m, 3, 3) of the inverses over the second-order
+    """Solutions (m, 6) of symmetric positive definite ``gram`` (6, 6, m) against
+    ``rhs`` (6, m), and the block (m, 3, 3) of the inverses over the second-order
     coefficients, by Gauss-Jordan elimination over the spots at once (no LAPACK;
-    a positive definite matrix needs no pivoting)."""
-    m, k, _ = gram.shape
-    aug = np.concatenate([gram, rhs[:, :, None], np.broadcast_to(_SECOND_UNIT, (m, k, 3))],
-                         axis=2)
+    a positive definite matrix needs no pivoting). The spots run along the last axis,
+    so each step's rows are contiguous."""
+    k, _, m = gram.shape
+    aug = np.empty((k, k + 4, m))
+    aug[:, :k] = gram
+    aug[:, k] = rhs
+    aug[:, k + 1:] = _SECOND_UNIT[:, :, None]
     for j in range(k):
-        row = aug[:, j, j:] / aug[:, j, j, None]
-        aug[:, :, j:] -= aug[:, :, j, None] * row[:, None, :]
-        aug[:, j, j:] = row
-    return aug[:, :, k], aug[:, _SECOND, k + 1:]
+        row = aug[j, j:] / aug[j, j]
+        aug[:, j:] -= aug[:, j, None] * row
+        aug[j, j:] = row
+    return aug[:, k].T, aug[_SECOND, k + 1:].transpose(2, 0, 1)
 
 
 def line_fit(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarray,
@@ -135,8 +138,11 @@ def line_fit(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarray,
     # each pixel's terms and light over its noise: the normal equations' weights
     root_weight = 1.0 / np.sqrt(np.square(noise)[:, None] + (shot_adu * flux)[:, None] * p)
     basis *= root_weight[:, None, :]
-    return _solve(np.einsum("mki,mli->mkl", basis, basis),
-                  np.einsum("mki,mi->mk", basis, light * root_weight))
+    # row by row: einsum's one product over the whole stack takes 200 KB of iteration buffers
+    gram = np.empty((6, 6, len(basis)))
+    for k in range(6):
+        np.einsum("mi,mli->lm", basis[:, k], basis, out=gram[k])
+    return _solve(gram, np.einsum("mki,mi->km", basis, light * root_weight))
 
 
 def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
