@@ -75,6 +75,43 @@ def test_solve_matches_numpy():
     assert np.allclose(block, np.linalg.inv(gram)[:, 3:, 3:], rtol=1e-9)
 
 
+def _pixel_gaussian(cx: float, cy: float, sigma_px: float) -> np.ndarray:
+    """A unit Gaussian centred (cx, cy) px off the middle pixel's centre, integrated
+    over the 5 x 5 pixels (math.erf), row-major."""
+    def axis(c):
+        edges = np.arange(-2.5, 3.0) - c
+        cdf = np.array([0.5 * math.erf(e / (sigma_px * math.sqrt(2.0))) for e in edges])
+        return np.diff(cdf)
+    return np.outer(axis(cy), axis(cx)).ravel()
+
+
+def test_line_fit_is_the_weighted_least_squares_fit():
+    """Against the fit made independently: the derivatives by finite differences of the
+    pixel-integrated Gaussian, the weighted least squares by LAPACK."""
+    rng = np.random.default_rng(2)
+    sigma, h, noise, shot = 0.8, 1e-3, 3.0, 1.0
+    for _ in range(5):
+        cx, cy = rng.uniform(-0.5, 0.5, 2)
+        def g(dx, dy, cx=cx, cy=cy):
+            return _pixel_gaussian(cx + dx, cy + dy, sigma)
+        design = np.stack([g(0, 0), (g(h, 0) - g(-h, 0)) / (2 * h),
+                           (g(0, h) - g(0, -h)) / (2 * h),
+                           (g(h, 0) - 2 * g(0, 0) + g(-h, 0)) / h ** 2,
+                           (g(h, h) - g(h, -h) - g(-h, h) + g(-h, -h)) / (4 * h * h),
+                           (g(0, h) - 2 * g(0, 0) + g(0, -h)) / h ** 2], axis=1)
+        light = 2000.0 * _segment(1.0, 0.6, 1.5, 0.3, 2, (cx, cy)).ravel()
+        light += rng.normal(0.0, noise, 25)
+        p = design[:, 0]
+        weight = 1.0 / (noise ** 2 + shot * max(p @ light / (p @ p), 0.0) * p)
+        normal = design.T @ (weight[:, None] * design)
+        expected = np.linalg.solve(normal, design.T @ (weight * light))
+        coef, cov = line_fit(light[None, :], np.array([cx]), np.array([cy]),
+                             np.array([noise]), sigma, shot)
+        se = np.sqrt(np.diag(np.linalg.inv(normal)))
+        assert np.all(np.abs(coef[0] - expected) < 1e-4 * se)
+        assert np.allclose(cov[0], np.linalg.inv(normal)[3:, 3:], rtol=1e-4)
+
+
 def test_stars_pass_and_short_tracks_fail_under_a_sharp_psf():
     """PSF sigma 0.65 px, peak SNR 15-150: no star of 900 is taken for a track (its
     chance is 1 in 10^4 by the test's design); of tracks 1.5-3 px long, more the brighter
