@@ -94,10 +94,12 @@ handled, sigma 3.5 px):
    (tracker.detect.spot_shapes); so are fainter spots whose 3 x 3 holds a
    point beyond a star's noise, against a PSF the frame's stars measured
    (else the sharpest the test is made for) and the pixel noise measured on
-   those spots (tracker.detect.point_spot), and unsaturated spots whose 5 x 5 light
-   is a particle's short track, elongated beyond the frame's stars and narrower
-   across than they are at its own pixel phase (tracker.detect.line_spot: under a
-   sharp PSF a track 1-4 px long is as wide overall as a star). Maxima on a
+   those spots (tracker.detect.point_spot), and spots whose 5 x 5 light is a
+   particle's short track, elongated beyond the frame's stars and narrower across
+   than they are at its own pixel phase, or a round hit narrower overall than the
+   stars the PSF was measured on (tracker.detect.line_spot: under a sharp PSF a track
+   1-4 px long is as wide overall as a star; a saturated spot is fitted on its
+   unclipped pixels). Maxima on a
    bright body are masked (tracker.detect.surroundings): too few sky sectors
    around them, light along a line with sky across it (a crescent, a ghost's ring), or a
    clipped plateau shared with another saturated candidate (the Earth's lit
@@ -160,6 +162,7 @@ from tracker.detect.line_spot import (
     LINE_RADIUS,
     LINE_REFERENCE_SNR,
     LINE_REFERENCE_SPOTS,
+    LINE_USABLE,
     line_fit,
     track_spots,
 )
@@ -1402,7 +1405,7 @@ class DefaultDetector:
             sharp |= self._point_like(cand, v, noise, level, ~(judged | saturated | sharp))
             # a short track under a sharp PSF: elongated and narrower across than the
             # frame's stars at its own pixel phase (tracker.detect.line_spot)
-            sharp |= self._track_like(cand, v, noise, level, saturated, sharp)
+            sharp |= self._track_like(cand, v, noise, level, saturated & ~clipped, sharp)
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp
         self.counters["cosmic_rays"] += n_sharp
@@ -1495,11 +1498,15 @@ class DefaultDetector:
         return out
 
     def _track_like(self, cand: np.ndarray, v: dict, noise: np.ndarray, level: np.ndarray,
-                    saturated: np.ndarray, sharp: np.ndarray) -> np.ndarray:
-        """The unsaturated spots not yet found sharp whose 5 x 5 light is a particle's short
-        track, against the frame's bright unsaturated spots' shape under the PSF searched
-        with (tracker.detect.line_spot): (n,) bool. Spots whose 5 x 5 reaches beyond the
-        frame are not tested."""
+                    untested: np.ndarray, sharp: np.ndarray) -> np.ndarray:
+        """The spots not yet found sharp whose 5 x 5 light is a particle's short track,
+        against the frame's bright unsaturated spots' shape under the PSF searched with
+        (tracker.detect.line_spot): (n,) bool. The pixels light clipped (at or above
+        ``cand_censor``, :meth:`_measure`) are left out of the fit, and a saturated spot is
+        tested when at least ``LINE_USABLE`` of its 5 x 5 are left (a track's clipped core
+        is as elongated as its light, a star's round). Spots ``untested`` (saturated where
+        the sky's noise, not light, reaches full scale) and those whose 5 x 5 reaches
+        beyond the frame are not tested."""
         out = np.zeros(len(cand), bool)
         rows, cols = self.layout.frame_position(cand)
         ox, oy = np.rint(v["x0"]), np.rint(v["y0"])
@@ -1507,9 +1514,10 @@ class DefaultDetector:
         h, w = self.input.shape
         inside = ((cols + ox >= r) & (rows + oy >= r) & (cols + ox <= w - 1 - r)
                   & (rows + oy <= h - 1 - r))
-        spots = np.flatnonzero(inside & ~saturated & ~sharp & (v["weighted"] > 0))
+        spots = np.flatnonzero(inside & ~untested & ~sharp & (v["weighted"] > 0))
         if len(spots) < LINE_REFERENCE_SPOTS:
             return out
+        saturated = v["raw_peak"][spots] >= self.saturation
         padded, bg = self.input.padded.ravel(), self.bg_pad.ravel()
         axis = np.arange(-r, r + 1)
         offsets = (axis[:, None] * self.layout.stride + axis[None, :]).ravel()[None, :]
@@ -1518,18 +1526,48 @@ class DefaultDetector:
         phase_x, phase_y = v["x0"][spots] - ox[spots], v["y0"][spots] - oy[spots]
         coef = np.zeros((len(spots), 6))
         cov = np.zeros((len(spots), 3, 3))
+        enough = np.ones(len(spots), bool)
         # _LINE_CHUNK spots at a time: the fit's (m, 6, 25) basis stays small
         for first in range(0, len(spots), _LINE_CHUNK):
             part = slice(first, first + _LINE_CHUNK)
             at = centre[part, None] + offsets
-            light = np.take(padded, at, mode="clip").astype(np.float64)
+            raw = np.take(padded, at, mode="clip")
+            usable = raw < self.cand_censor[spots[part], None]
+            if usable.all():
+                usable = None        # nothing clipped: every pixel fitted, no weights
+            else:
+                enough[part] = np.count_nonzero(usable, axis=1) >= LINE_USABLE
+                usable |= ~enough[part, None]   # fitted whole, not tested
+            light = raw.astype(np.float64)
             light -= np.take(bg, at, mode="clip")
             light -= level[spots[part], None]
             coef[part], cov[part] = line_fit(light, phase_x[part], phase_y[part],
-                                             noise[spots[part]], self.psf.sigma_px)
-        out[spots] = track_spots(coef, cov, v["snr"][spots] >= LINE_REFERENCE_SNR,
-                                 self.psf.sigma_px)
+                                             noise[spots[part]], self.psf.sigma_px,
+                                             usable=usable)
+        out[spots] = track_spots(coef, cov, (v["snr"][spots] >= LINE_REFERENCE_SNR) & ~saturated,
+                                 self.psf.sigma_px, self._measured_spots(centre)) & enough
         return out
+
+    def _measured_spots(self, centre: np.ndarray) -> np.ndarray | None:
+        """Which of the spots (their central pixels ``centre``, padded flat indices) this
+        frame's PSF was measured on (tracker.detect.psf: isolated, round, unsaturated
+        stars, the impulses set aside), or None when it was not measured on the frame's
+        stars. They set the stars' width for the short-track test's narrow spots: the
+        bright spots at large may be broad bumps beside the Moon (the stars read 2
+        sigma^2 narrower than their median: lunar bench, seed 1) or hits."""
+        meter = self.psf_meter
+        n = meter.last_n
+        if not self.psf.stars or n == 0:
+            return None
+        good = meter.last_good
+        rows, cols = self.layout.frame_position(meter.last_cand[:n][good])
+        measured_at = np.sort(self.layout.flat_index(
+            np.rint(rows + meter.per_star["y"][:n][good]).astype(np.intp),
+            np.rint(cols + meter.per_star["x"][:n][good]).astype(np.intp)))
+        if len(measured_at) == 0:
+            return None
+        which = np.minimum(np.searchsorted(measured_at, centre), len(measured_at) - 1)
+        return measured_at[which] == centre
 
     def _embedded(self, n: int, cand: np.ndarray, v: dict) -> np.ndarray:
         """Candidates with fewer than ``min_sky_sectors`` sky sectors around them

@@ -41,8 +41,29 @@ star's own shot noise, g ADU^2 per ADU: tracker.detect.significance's
 convention). The frame's stars set the reference only when at least
 :data:`LINE_REFERENCE_SPOTS` of them are bright, and a frame whose stars are
 trailed (their shear over the PSF's variance beyond
-:data:`_TRAILED_SHEAR`) is not tested: a trail is no second-order change of
-the PSF.
+:data:`_TRAILED_SHEAR`) is not tested for elongation: a trail is no
+second-order change of the PSF.
+
+A hit of 1-1.5 px, round, is no longer than it is wide: its charge cloud
+alone, with no optics to blur it, is narrower overall than the stars, its
+trace (dCxx + dCyy) / 2 below theirs by sigma^2 - 0.45^2 (a charge's
+diffusion, 0.45 px) to first order, half the PSF's variance at sigma 0.65
+px. A spot is such a hit (:func:`track_spots` given the stars the PSF was
+measured on: isolated, round, unsaturated; not the bright spots at large,
+which beside the Moon are broad bumps as often) when its trace lies below
+those stars' median by :data:`Z_NARROW` standard errors (one-sided, a
+star's chance 1 in 10^5; with :data:`_FIELD_SHEAR` of the PSF's variance
+as above) and by :data:`_NARROW_TRACE` of the PSF's variance (the deficit
+of a charge cloud under a PSF of sigma 0.52 px and wider). A trailed frame's
+stars are wider than its PSF, not narrower, and a hit is narrower than them
+too, so this test runs on trailed frames as well.
+
+A saturated spot is fitted on its unclipped pixels (``usable``): a pixel
+light clipped at full scale says only "at least full scale" (censored, as
+tracker.detect.fit does), and the model of the unclipped ring about a
+clipped core is the same. A star's clipped core is round and centred on
+its PSF, its ring the PSF's wings; a track's core is as elongated as its
+light and its ring falls off as fast as its charge's diffusion.
 
 The 6 x 6 normal equations are solved by Gauss-Jordan elimination written
 out over the spots (no LAPACK call, whose BLAS threads would spin on the
@@ -59,14 +80,17 @@ from tracker.detect.order import median
 from tracker.detect.significance import SHOT_ADU
 from tracker.normal import erf
 
-__all__ = ["LINE_RADIUS", "LINE_REFERENCE_SNR", "LINE_REFERENCE_SPOTS", "Z_ACROSS", "Z_LINE",
-           "line_fit", "track_spots"]
+__all__ = ["LINE_RADIUS", "LINE_REFERENCE_SNR", "LINE_REFERENCE_SPOTS", "LINE_USABLE", "Z_ACROSS",
+           "Z_LINE", "Z_NARROW", "line_fit", "track_spots"]
 
 LINE_RADIUS = 2                # the 5 x 5 pixels around the spot's central pixel
+LINE_USABLE = 16               # a saturated spot is fitted on at least this many of them
 Z_LINE = math.sqrt(-2.0 * math.log(1e-4))   # chi(2) at a star's chance of 1 in 10^4: 4.29
 Z_ACROSS = 3.0                 # ... and narrower across than the frame's stars by this
 _FIELD_SHEAR = 0.05            # a star's shear varies across the field by this x sigma^2
 _LINE_SHEAR = 0.25             # a track's shear beyond the stars' is at least this x sigma^2
+Z_NARROW = 4.26                # a star's trace this many standard errors below: 1 in 10^5
+_NARROW_TRACE = 0.25           # a hit's trace below the stars' by at least this x sigma^2
 LINE_REFERENCE_SNR = 30.0          # spots this significant, unsaturated, set the stars' shear
 LINE_REFERENCE_SPOTS = 5           # ... when there are at least this many
 _TRAILED_SHEAR = 0.25          # the stars' shear over sigma^2 beyond this: a trailed frame
@@ -122,21 +146,28 @@ def _solve(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def line_fit(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarray,
-             noise: np.ndarray, sigma_px: float,
-             shot_adu: float = SHOT_ADU) -> tuple[np.ndarray, np.ndarray]:
+             noise: np.ndarray, sigma_px: float, shot_adu: float = SHOT_ADU,
+             usable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The model's coefficients (m, 6) and the covariance (m, 3, 3) of its second-order
     ones, hxx, hxy, hyy (module docstring).
 
     ``light``: (m, 25) background-subtracted ADU of the 5 x 5 pixels around
     the pixel nearest each spot's centre, row-major; ``phase_x``, ``phase_y``:
     (m,) the centre's offset from that pixel's centre, px; ``noise``: (m,) the
-    pixel noise without the spot's light, ADU; ``sigma_px``: the frame's PSF sigma.
+    pixel noise without the spot's light, ADU; ``sigma_px``: the frame's PSF sigma;
+    ``usable``: (m, 25) bool, the pixels fitted (default all): a pixel light clipped at
+    full scale says only "at least full scale" and is left out (censored), so a
+    saturated spot is judged on its unclipped pixels (at least :data:`LINE_USABLE`).
     """
     basis = _basis(np.asarray(phase_x, float), np.asarray(phase_y, float), sigma_px)
     p = basis[:, 0]
-    flux = np.maximum(np.einsum("mi,mi->m", p, light) / np.einsum("mi,mi->m", p, p), 0.0)
+    fitted = p if usable is None else p * usable
+    flux = np.maximum(np.einsum("mi,mi->m", fitted, light)
+                      / np.einsum("mi,mi->m", fitted, p), 0.0)
     # each pixel's terms and light over its noise: the normal equations' weights
     root_weight = 1.0 / np.sqrt(np.square(noise)[:, None] + (shot_adu * flux)[:, None] * p)
+    if usable is not None:
+        root_weight *= usable
     basis *= root_weight[:, None, :]
     # row by row: einsum's one product over the whole stack takes 200 KB of iteration buffers
     gram = np.empty((6, 6, len(basis)))
@@ -146,29 +177,40 @@ def line_fit(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarray,
 
 
 def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
-                sigma_px: float) -> np.ndarray:
+                sigma_px: float, measured: np.ndarray | None = None) -> np.ndarray:
     """The spots that are particles' tracks (module docstring): (m,) bool.
 
     ``coef``, ``cov``: :func:`line_fit`'s; ``reference``: the spots (m,) bool
-    that may set the frame's stars' shear (bright, unsaturated).
+    that may set the frame's stars' shear (bright, unsaturated); ``measured``: the
+    spots (m,) bool the frame's PSF was measured on (stars, isolated and round), whose
+    width sets the stars' for the test of spots narrower overall (none: not tested).
     """
-    m = len(coef)
-    out = np.zeros(m, bool)
     flux = coef[:, 0]
     fit = flux > 0.0
     scale = 1.0 / np.where(fit, flux, 1.0)
     # (dCxx - dCyy) / 2, dCxy and (dCxx + dCyy) / 2 as combinations of hxx, hxy, hyy
     combos = np.array([[1, 0, -1], [0, 1, 0], [1, 0, 1]], float)
     value = np.einsum("jk,mk->mj", combos, coef[:, _SECOND]) * scale[:, None]
-    ref = reference & fit
-    if np.count_nonzero(ref) < LINE_REFERENCE_SPOTS:
-        return out
-    stars = np.array([median(value[ref, j]) for j in range(3)])
     variance = sigma_px ** 2
-    if math.hypot(stars[0], stars[1]) > _TRAILED_SHEAR * variance:
-        return out
-    diff = value - stars[None, :]
-    var = np.einsum("jk,mkl,jl->mj", combos[:2], cov, combos[:2]) * np.square(scale)[:, None]
+    var = np.einsum("jk,mkl,jl->mj", combos, cov, combos) * np.square(scale)[:, None]
+    out = _elongated(coef, cov, value, var, reference & fit, variance, scale)
+    if measured is not None:
+        out |= _narrow(value, var, measured & fit, variance)
+    return fit & out
+
+
+def _elongated(coef: np.ndarray, cov: np.ndarray, value: np.ndarray, var: np.ndarray,
+               ref: np.ndarray, variance: float, scale: np.ndarray) -> np.ndarray:
+    """The spots whose shear differs from the ``ref`` spots' median and that are narrower
+    across than they are (module docstring); none when fewer than
+    ``LINE_REFERENCE_SPOTS`` set it or the frame is trailed. ``value``: each spot's
+    shear and trace (m, 3), ``var`` their variances, ``scale`` 1 / flux."""
+    if np.count_nonzero(ref) < LINE_REFERENCE_SPOTS:
+        return np.zeros(len(value), bool)
+    shape = np.array([median(value[ref, j]) for j in range(3)])
+    if math.hypot(shape[0], shape[1]) > _TRAILED_SHEAR * variance:
+        return np.zeros(len(value), bool)
+    diff = value - shape[None, :]
     field = (_FIELD_SHEAR * variance) ** 2
     z_shear = np.hypot(diff[:, 0] / np.sqrt(var[:, 0] + field),
                        diff[:, 1] / np.sqrt(var[:, 1] + field))
@@ -178,8 +220,21 @@ def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
     nx, ny = -np.sin(angle), np.cos(angle)
     across = np.stack([nx * nx, nx * ny, ny * ny], axis=1)
     across_value = np.einsum("mk,mk->m", across, coef[:, _SECOND]) * scale
-    across_ref = (stars[2] - np.cos(2 * angle) * stars[0] - np.sin(2 * angle) * stars[1]) / 2
+    across_ref = (shape[2] - np.cos(2 * angle) * shape[0] - np.sin(2 * angle) * shape[1]) / 2
     across_var = np.einsum("mk,mkl,ml->m", across, cov, across) * np.square(scale)
     z_across = (across_ref - across_value) / np.sqrt(across_var + field)
     shear = np.hypot(diff[:, 0], diff[:, 1])
-    return fit & (z_shear > Z_LINE) & (z_across > Z_ACROSS) & (shear > _LINE_SHEAR * variance)
+    return (z_shear > Z_LINE) & (z_across > Z_ACROSS) & (shear > _LINE_SHEAR * variance)
+
+
+def _narrow(value: np.ndarray, var: np.ndarray, stars: np.ndarray,
+            variance: float) -> np.ndarray:
+    """The spots whose trace, (dCxx + dCyy) / 2, lies below the ``stars``' median by
+    ``Z_NARROW`` standard errors and ``_NARROW_TRACE`` of the PSF's variance (module
+    docstring); none when fewer than ``LINE_REFERENCE_SPOTS`` stars set it."""
+    if np.count_nonzero(stars) < LINE_REFERENCE_SPOTS:
+        return np.zeros(len(value), bool)
+    deficit = median(value[stars, 2]) - value[:, 2]
+    field = (_FIELD_SHEAR * variance) ** 2
+    return ((deficit > _NARROW_TRACE * variance)
+            & (deficit > Z_NARROW * np.sqrt(var[:, 2] + field)))
