@@ -1404,7 +1404,8 @@ class DefaultDetector:
             # impulse stage spared is a point on its 3 x 3, beyond a star's noise
             sharp |= self._point_like(cand, v, noise, level, ~(judged | saturated | sharp))
             # a short track under a sharp PSF: elongated and narrower across than the
-            # frame's stars at its own pixel phase (tracker.detect.line_spot)
+            # frame's stars at its own pixel phase, or a round hit narrower overall
+            # (tracker.detect.line_spot)
             sharp |= self._track_like(cand, v, noise, level, saturated & ~clipped, sharp)
         n_sharp = int(np.count_nonzero(sharp))
         self.counters["sharp_spots"] = n_sharp

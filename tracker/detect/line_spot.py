@@ -73,6 +73,7 @@ core the detector's own slab thread runs on).
 from __future__ import annotations
 
 import math
+from statistics import NormalDist
 
 import numpy as np
 
@@ -89,7 +90,7 @@ Z_LINE = math.sqrt(-2.0 * math.log(1e-4))   # chi(2) at a star's chance of 1 in 
 Z_ACROSS = 3.0                 # ... and narrower across than the frame's stars by this
 _FIELD_SHEAR = 0.05            # a star's shear varies across the field by this x sigma^2
 _LINE_SHEAR = 0.25             # a track's shear beyond the stars' is at least this x sigma^2
-Z_NARROW = 4.26                # a star's trace this many standard errors below: 1 in 10^5
+Z_NARROW = NormalDist().inv_cdf(1.0 - 1e-5)   # a star's trace this far below: 1 in 10^5
 _NARROW_TRACE = 0.25           # a hit's trace below the stars' by at least this x sigma^2
 LINE_REFERENCE_SNR = 30.0          # spots this significant, unsaturated, set the stars' shear
 LINE_REFERENCE_SPOTS = 5           # ... when there are at least this many
