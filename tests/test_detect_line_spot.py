@@ -134,11 +134,12 @@ def test_elongated_psf_and_trailed_stars_pass():
         assert not track_spots(coef, cov, np.ones(200, bool), 0.65).any(), length
 
 
-def _grid_frame(seed: int, sigma_px: float,
-                impostor: Callable[[np.random.Generator, tuple[float, float]], np.ndarray]
-                ) -> tuple[np.ndarray, ...]:
-    """A tests/spot_grid.py frame: two thirds of its spots stars of PSF sigma ``sigma_px``
-    (400-4000 e-) at random pixel phases, a third ``impostor(rng, phase)`` (13 x 13 e-);
+Light = Callable[[np.random.Generator, tuple[float, float]], np.ndarray]
+
+
+def _grid_frame(seed: int, star_light: Light, impostor: Light) -> tuple[np.ndarray, ...]:
+    """A tests/spot_grid.py frame: two thirds of its spots stars ``star_light(rng,
+    phase)``, a third ``impostor(rng, phase)`` (13 x 13 e-), at random pixel phases;
     (image, xs, ys, star mask)."""
     rng = np.random.default_rng(seed)
     xs, ys = grid_centres()
@@ -146,10 +147,14 @@ def _grid_frame(seed: int, sigma_px: float,
     light = np.full(SHAPE, SKY_E)
     for x, y, is_star in zip(xs, ys, star, strict=True):
         phase = tuple(rng.uniform(-0.5, 0.5, 2))
-        unit = (spot(float(rng.uniform(400.0, 4000.0)), sigma_px, 6, phase) if is_star
-                else impostor(rng, phase))
+        unit = star_light(rng, phase) if is_star else impostor(rng, phase)
         light[y - 6:y + 7, x - 6:x + 7] += unit
     return sensor_frame(light, rng), xs, ys, star
+
+
+def _faint_star(sigma_px: float) -> Light:
+    """Stars of PSF sigma ``sigma_px``, 400-4000 e-."""
+    return lambda rng, phase: spot(float(rng.uniform(400.0, 4000.0)), sigma_px, 6, phase)
 
 
 def _short_track(rng: np.random.Generator, phase: tuple[float, float]) -> np.ndarray:
@@ -169,12 +174,14 @@ def _round_hit(rng: np.random.Generator, phase: tuple[float, float]) -> np.ndarr
     return spot(float(rng.uniform(800.0, 3000.0)), _DIFFUSION_PX, 6, phase)
 
 
-def _found_on_grid(impostor, sigma_px: float, seeds: tuple[int, int]) -> tuple[int, ...]:
-    """(stars found, stars, impostors found, impostors) over two :func:`_grid_frame`s."""
+def _found_on_grid(impostor: Light, sigma_px: float, seeds: tuple[int, int],
+                   star_light: Light | None = None) -> tuple[int, ...]:
+    """(stars found, stars, impostors found, impostors) over two :func:`_grid_frame`s,
+    their stars ``star_light`` (default :func:`_faint_star` of ``sigma_px``)."""
     det = make_detector(DetectConfig(max_stars=1024), SHAPE, 10)
     out = np.zeros(4, int)
     for seed in seeds:
-        image, xs, ys, star = _grid_frame(seed, sigma_px, impostor)
+        image, xs, ys, star = _grid_frame(seed, star_light or _faint_star(sigma_px), impostor)
         kept = found(det.detect(image).stars, xs, ys, star)
         out += (kept[0], np.count_nonzero(star), kept[1], np.count_nonzero(~star))
     return tuple(int(v) for v in out)
@@ -191,47 +198,35 @@ def test_detector_drops_short_tracks_and_keeps_stars():
 def test_a_hits_remnant_is_dropped_and_stars_kept():
     """A one-pixel hit whose core the impulse stage replaced leaves its wings, which the
     search finds (before: 66 of 146 hits under a 0.70 px PSF reported); the spot on them
-    is dropped (4 left) and every star kept."""
+    is dropped (4 left; none since round hits narrower than the stars are) and every star
+    kept."""
     stars_found, stars, hits_found, hits = _found_on_grid(_one_pixel_hit, 0.7, (21, 22))
     assert stars_found == stars
     assert hits_found <= 0.1 * hits, (hits_found, hits)
 
 
 
-def _saturated_star_or_track(rng: np.random.Generator, phase: tuple[float, float],
-                             sigma_px: float, star: bool) -> np.ndarray:
-    """A star of 8000-30000 e- (its core clipped at full scale, 1381 e- over the sky) or
-    a particle's track 1.5-3 px long of 4000-12000 e- (clipped along its middle)."""
-    if star:
-        return spot(float(rng.uniform(8000.0, 30000.0)), sigma_px, 6, phase)
+def _faint_or_saturated_star(rng: np.random.Generator, phase: tuple[float, float]) -> np.ndarray:
+    """Half the stars (PSF sigma 0.65 px) 400-4000 e-, half 8000-30000 e- (their cores
+    clipped at full scale, 1381 e- over the sky)."""
+    flux = rng.uniform(400.0, 4000.0) if rng.random() < 0.5 else rng.uniform(8000.0, 30000.0)
+    return spot(float(flux), 0.65, 6, phase)
+
+
+def _saturated_track(rng: np.random.Generator, phase: tuple[float, float]) -> np.ndarray:
+    """A particle's track 1.5-3 px long at any angle, 4000-12000 e- (clipped along its
+    middle)."""
     return _segment(float(rng.uniform(4000.0, 12000.0)), _DIFFUSION_PX,
                     float(rng.uniform(1.5, 3.0)), float(rng.uniform(0.0, math.pi)), 6, phase)
 
 
 def test_saturated_short_tracks_are_dropped_and_saturated_stars_kept():
-    """A grid under a 0.65 px PSF whose stars are half faint (400-4000 e-) and half
-    saturated, its impostors saturated short tracks: the track test fits the clipped spots
-    on their unclipped pixels. Every star is found; of the ~150 tracks at most a tenth
-    are reported (before the censored fit: 51 of 152; after: 1; seeds 33, 34 read
-    48 of 149 and 2)."""
-    det = make_detector(DetectConfig(max_stars=1024), SHAPE, 10)
-    counts = np.zeros(4, int)
-    for seed in (31, 32):
-        rng = np.random.default_rng(seed)
-        xs, ys = grid_centres()
-        star = rng.random(len(xs)) < 2.0 / 3.0
-        light = np.full(SHAPE, SKY_E)
-        for x, y, is_star in zip(xs, ys, star, strict=True):
-            phase = tuple(rng.uniform(-0.5, 0.5, 2))
-            if is_star and rng.random() < 0.5:
-                unit = spot(float(rng.uniform(400.0, 4000.0)), 0.65, 6, phase)
-            else:
-                unit = _saturated_star_or_track(rng, phase, 0.65, is_star)
-            light[y - 6:y + 7, x - 6:x + 7] += unit
-        image = sensor_frame(light, rng)
-        kept = found(det.detect(image).stars, xs, ys, star)
-        counts += (kept[0], np.count_nonzero(star), kept[1], np.count_nonzero(~star))
-    stars_found, stars, tracks_found, tracks = (int(v) for v in counts)
+    """A grid under a 0.65 px PSF whose stars are half faint and half saturated, its
+    impostors saturated short tracks: the track test fits the clipped spots on their
+    unclipped pixels. Every star is found; of the ~150 tracks at most a tenth are
+    reported (before: 51 of 152; after: 0; seeds 33, 34 read 46 of 149 and 0)."""
+    stars_found, stars, tracks_found, tracks = _found_on_grid(
+        _saturated_track, 0.65, (31, 32), _faint_or_saturated_star)
     assert stars_found == stars
     assert tracks_found <= 0.1 * tracks, (tracks_found, tracks)
 
