@@ -371,7 +371,8 @@ class Solver:
     def solve(self, stars, t_ns: int, observer=None, search_area_px: float | None = None,
               predicted: np.ndarray | None = None,
               predicted_xy: np.ndarray | None = None,
-              exposure_s: float | None = None) -> Solution:
+              exposure_s: float | None = None,
+              smear_px: np.ndarray | None = None) -> Solution:
         """Identify ``stars`` (STAR_DTYPE rows: x, y, flux) seen at ``t_ns``; see the module.
 
         ``observer``: the frame's tracker.astrometry.observer.Observer (None: unknown).
@@ -388,6 +389,9 @@ class Solver:
         there (within ``track_gate_px``), with no projection of its own.
         ``exposure_s``: the frame's exposure time; with it and a rate, each
         star's weight counts its trail (module docstring, refinement).
+        ``smear_px`` (len(stars), 2): those trails, px, if the caller has them
+        (:meth:`smear_px` at or within a few px of the stars: the same to a
+        thousandth of a pixel); None: reckoned here.
         """
         timer = self._timer
         timer.reset()
@@ -401,7 +405,12 @@ class Solver:
         if isinstance(prepared, str):
             return self._fail(prepared, hip)
         idx, xy, flux = prepared
-        smear = None if exposure_s is None else self.smear_px(xy, t_ns, exposure_s)
+        if exposure_s is None:
+            smear = None
+        elif smear_px is None:
+            smear = self.smear_px(xy, t_ns, exposure_s)
+        else:
+            smear = smear_px[idx]
         # every star's weight once (elementwise: the same numbers as the subsets' own)
         self._weight = None if self._snr is None else 1.0 / centroid_variance(
             self._snr, None if smear is None else np.square(smear).sum(axis=1))
