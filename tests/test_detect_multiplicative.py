@@ -108,7 +108,7 @@ def test_later_within_matches_brute_force():
     """The duplicate mask (a centre within r of an earlier, brighter one) of the speckle mode."""
     rng = np.random.default_rng(4)
     for _ in range(200):
-        n = int(rng.integers(0, 40))
+        n = int(rng.integers(0, 300))    # both the dense and the sorted comparison
         x, y, r = rng.uniform(0, 20, n), rng.uniform(0, 20, n), rng.uniform(0.5, 3.0)
         d = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
         expected = np.array([np.any(d[i, :i] <= r) for i in range(n)], bool)

@@ -32,6 +32,8 @@ from tracker.identify.predict import (
     pinhole_travel,
     pixel_jacobian,
 )
+from tracker.identify.skyindex import DecSorted
+from tracker.identify.solver import Solver
 from tracker.identify.windows import WindowPlanner
 from tracker.pipeline import Pipeline
 from tracker.sim import render_sequence, render_sky
@@ -418,7 +420,8 @@ def _windowed_trail_centres(cfg, frames, monkeypatch, point_fit_all: bool):
             continue
         windowed += 1
         truth = f.stars[f.stars["in_frame"]]
-        errors.extend(_nearest(np.stack((solved[-1]["x"], solved[-1]["y"]), 1),
+        stars, _ = solved[-1]
+        errors.extend(_nearest(np.stack((stars["x"], stars["y"]), 1),
                                np.stack((truth["x"], truth["y"]), 1)))
     monkeypatch.setattr(PixelGaussianFit, "run", run)
     assert windowed >= len(frames) - 4
@@ -448,3 +451,40 @@ def test_stars_the_trail_fit_centres_skip_the_point_fit_in_their_windows(monkeyp
     assert stats["vertex"][2] >= stats["point fit"][2] - 2          # no star lost
     assert stats["vertex"][0] < 1.05 * stats["point fit"][0]
     assert stats["vertex"][1] < 1.05 * stats["point fit"][1]
+
+
+def test_a_windowed_frame_reckons_the_smear_twice_and_reuses_the_catalogue_cone(monkeypatch):
+    """Work counted on a 3 deg/s slew (16 mm, 10 fps, 20 ms: trails of 5.5 px): each
+    windowed frame reckons its stars' smear from the rate at most twice, for the stamp detector's
+    choice of the stars the trail fit centres and for the trail fit, whose smears the
+    solve's weights take (it reckoned them a third time, on the fitted centres); and the
+    catalogue's cone, 2 deg wider than the field, is searched anew at most every sixth
+    frame (0.3 deg a frame; every second frame at 0.5 deg)."""
+    cfg, cat, rng = _sky(seed=23, exposure_ms=20.0, psf_sigma_px=1.3)
+    R0 = matrix_from_radec_roll(*np.radians((40.0, -35.0, 10.0)))
+    frames = list(render_sequence(cfg.camera, cat, R0, cfg.sim, rng, 14, fps=10.0,
+                                  rate_deg_s=(-2.4, 1.8, 0.0)))
+    counts = {"smear": 0, "cone": 0}
+
+    def counting(name, method):
+        def counted(*args, **kwargs):
+            counts[name] += 1
+            return method(*args, **kwargs)
+        return counted
+
+    monkeypatch.setattr(Solver, "smear_px", counting("smear", Solver.smear_px))
+    monkeypatch.setattr(DecSorted, "cone", counting("cone", DecSorted.cone))
+    pipe = Pipeline(cfg)
+    windowed, smears, cones = 0, [], 0
+    for i, f in enumerate(frames):
+        counts.update(smear=0, cone=0)
+        r = pipe.process(f.image, 10, int(i * 1e8), exposure_s=0.02)
+        assert r.solution.ok, i
+        if r.windows:
+            windowed += 1
+            smears.append(counts["smear"])
+            cones += counts["cone"]
+    assert windowed >= len(frames) - 3
+    # (once on the frames that measure the PSF: no stamps, no choice to make)
+    assert max(smears) == 2 and smears.count(2) >= windowed - 2, smears
+    assert cones <= 2, cones

@@ -179,16 +179,19 @@ class Pipeline:
             self._solver.reset(lens=lens)
 
     def solve_stars(self, stars, t_ns: int, observer: Observer | None = None,
-                    exposure_s: float | None = None) -> Solution:
+                    exposure_s: float | None = None,
+                    smear_px: np.ndarray | None = None) -> Solution:
         """Identify stars and solve the attitude, the catalogue at the observer's epoch.
 
         ``stars``: STAR_DTYPE rows (x, y, flux) in the camera's pixels;
         ``t_ns``, ``observer`` and ``exposure_s`` as in :meth:`process`
-        (None: the stars' trails unknown, not weighed).
+        (None: the stars' trails unknown, not weighed); ``smear_px`` their
+        trails if known (tracker.identify.solver.Solver.solve).
         """
         observer = observer or Observer()
         self._follow_epoch(observer)
-        return self.solver.solve(stars, t_ns, observer, exposure_s=exposure_s)
+        return self.solver.solve(stars, t_ns, observer, exposure_s=exposure_s,
+                                 smear_px=smear_px)
 
     def _follow_epoch(self, observer: Observer) -> None:
         """Propagate the catalogue to the observer's epoch if it moved too far (module doc)."""
@@ -293,34 +296,37 @@ class Pipeline:
         elif not identify:
             reason = "frame_size"
         else:
-            stars = self._untrailed(image, detections.stars, t_ns, exposure, stages)
-            solution = self.solve_stars(stars, t_ns, observer, exposure)
+            stars, smear = self._untrailed(image, detections.stars, t_ns, exposure, stages)
+            solution = self.solve_stars(stars, t_ns, observer, exposure, smear)
             stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})
         elapsed = (time.perf_counter_ns() - t0) / 1e6
         return FrameResult(detections, solution, elapsed, stages, reason, observer,
                            cpu_ms=_cpu_ms_since(c0), detect_cpu_ms=detect_cpu)
 
     def _untrailed(self, image: np.ndarray, stars: np.ndarray, t_ns: int, exposure_s: float,
-                   stages: dict) -> np.ndarray:
-        """``stars`` with trailed ones re-centred and merged (module docstring), or as given."""
+                   stages: dict) -> tuple[np.ndarray, np.ndarray | None]:
+        """``stars`` with trailed ones re-centred and merged (module docstring), or as given,
+        and their smears (n, 2) px at the positions detected (None: not reckoned; the
+        solve weighs the stars by them, tracker.identify.predict.centroid_variance: a
+        trail's centre moves it a few px, its smear by a thousandth of a pixel)."""
         if self._solver is None or len(stars) == 0 or image.ndim != 2:
-            return stars
+            return stars, None
         longest = self._solver.max_smear_px(t_ns, exposure_s)
         if longest is None or longest < self._trail.min_length:
-            return stars                  # no star of the frame trails far enough
+            return stars, None            # no star of the frame trails far enough
         xy = np.empty((len(stars), 2))
         xy[:, 0], xy[:, 1] = stars["x"], stars["y"]
         smear = self._solver.smear_px(xy, t_ns, exposure_s)
         if smear is None or not (np.hypot(smear[:, 0], smear[:, 1])
                                  >= self._trail.min_length).any():
-            return stars
+            return stars, smear
         t0 = time.perf_counter_ns()
         fitted = self._trail.refine(image, xy, smear)
         stars = stars.copy()
         stars["x"], stars["y"] = fitted[:, 0], fitted[:, 1]
-        stars = stars[~later_within(fitted[:, 0], fitted[:, 1], self._trail.sigma)]
+        distinct = ~later_within(fitted[:, 0], fitted[:, 1], self._trail.sigma)
         stages["trail"] = (time.perf_counter_ns() - t0) / 1e6
-        return stars
+        return stars[distinct], smear[distinct]
 
     def _refitted(self, shape: tuple[int, int], t_ns: int,
                   exposure_s: float) -> Callable[[np.ndarray], np.ndarray] | None:
@@ -366,12 +372,12 @@ class Pipeline:
         stages = {f"windows.{k}": v for k, v in detections.stages_ms.items()}
         stages["track.plan"] = (t1 - t0) / 1e6
         stages["windows.gather"] = (t2 - t1) / 1e6 - sum(detections.stages_ms.values())
-        stars = self._untrailed(image, detections.stars, t_ns, exposure_s, stages)
+        stars, smear = self._untrailed(image, detections.stars, t_ns, exposure_s, stages)
         named = prediction.catalogue[:plan.stars] >= 0
         solution = solver.solve(stars, t_ns, observer, search_area_px=plan.area_px,
                                 predicted=prediction.catalogue[:plan.stars][named],
                                 predicted_xy=prediction.xy[:plan.stars][named],
-                                exposure_s=exposure_s)
+                                exposure_s=exposure_s, smear_px=smear)
         if not solution.ok:
             return None
         stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})

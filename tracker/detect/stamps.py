@@ -121,6 +121,7 @@ from tracker.detect.psf import PsfEstimate
 from tracker.detect.result import Detections, StarFlag
 from tracker.detect.stars import StarTable
 from tracker.detect.threshold import gaussian_peak_threshold
+from tracker.detect.windowed import later_within
 from tracker.timing import StageTimer
 
 __all__ = ["StampDetector", "RING_PX"]
@@ -143,6 +144,8 @@ _BLEND_STEPS = 2               # windowed-centroid steps of a blended star from 
 _MAX_SHIFT_PX = 1.5            # the fit's centre stays this close to the peak pixel
 _SAME_STAR_PX = 1.0            # one star's detections in overlapping windows lie closer
 _NEIGHBOURS = np.ones((3, 3), np.uint8)
+_FLAGS = np.array((StarFlag.SATURATED, StarFlag.ELONGATED, StarFlag.BLENDED, StarFlag.EDGE),
+                  np.uint16)
 _MAX_SIGMA_PX = 3.5            # the widest optical PSF sigma the buffers are sized for, px
 
 
@@ -197,7 +200,6 @@ class StampDetector:
         self.edge = np.zeros((n, 4), bool)
         self.far_origin = np.array([self.frame_shape[1] - c, self.frame_shape[0] - c])
         self.noise = np.zeros(n, np.float32)
-        self.earlier = np.tri(self.max_candidates, k=-1, dtype=bool)   # [i, j]: j before i
         self.table = StarTable(cfg.max_stars)
         self.timer = StageTimer()
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
@@ -503,12 +505,8 @@ class StampDetector:
         keep = (~(sharp | off)).nonzero()[0]
         keep = keep[np.argsort(-snr[keep], kind="stable")]
         # one star's detections in two windows: the later within _SAME_STAR_PX of an
-        # earlier one left out (the pairs of a frame's few dozen stars in one comparison)
-        kx, ky = fx[keep], fy[keep]
-        k = len(keep)
-        near = np.hypot(kx[:, None] - kx, ky[:, None] - ky) <= _SAME_STAR_PX
-        near &= self.earlier[:k, :k]
-        keep = keep[~near.any(axis=1)]
+        # earlier one left out
+        keep = keep[~later_within(fx[keep], fy[keep], _SAME_STAR_PX)]
         self.counters["left_out"] = max(0, len(keep) - self.table.capacity)
         keep = keep[:self.table.capacity]
         count = len(keep)
@@ -519,13 +517,14 @@ class StampDetector:
         s["peak"][:count] = kept[:, self.centre9].max(axis=1)
         s["snr"][:count] = snr[keep]
         s["npix"][:count] = (kept > 3.0 * noise[keep, None]).sum(axis=1)
-        flags = np.zeros(count, np.uint16)
-        flags[raw[keep[:, None], self.centre9].max(axis=1) >= self.saturation] |= \
-            StarFlag.SATURATED
-        flags[(ellipticity[keep] > self.cfg.elongation_max) & judged[keep]] |= StarFlag.ELONGATED
-        flags[blended[keep]] |= StarFlag.BLENDED
-        flags[(across_x | across_y)[keep]] |= StarFlag.EDGE
-        s["flags"][:count] = flags
+        # the flags' bits (_FLAGS) of every star, summed over the kept ones' in one product
+        bits = np.empty((len(_FLAGS), m), bool)
+        np.greater_equal(raw[:, self.centre9].max(axis=1), self.saturation, out=bits[0])
+        np.greater(ellipticity, self.cfg.elongation_max, out=bits[1])
+        bits[1] &= judged
+        bits[2] = blended
+        np.logical_or(across_x, across_y, out=bits[3])
+        s["flags"][:count] = _FLAGS @ bits[:, keep]
         return count
 
     def _fit(self, which: np.ndarray, steps: int, signal: np.ndarray, raw: np.ndarray,

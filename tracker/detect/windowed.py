@@ -49,6 +49,9 @@ __all__ = ["WindowedCentroider", "later_within", "second_moments"]
 # its pixel-phase bias (< 0.03 px at sigma 0.6) is far inside their noise; but not
 # when the frame's edge cuts the window (then every such star is fitted).
 _FIT_MIN_SNR = 10.0
+# later_within compares every pair of up to this many points at once ([i, j]: j before i)
+_DENSE_POINTS = 128
+_EARLIER = np.tri(_DENSE_POINTS, k=-1, dtype=bool)
 
 
 class WindowedCentroider:
@@ -361,12 +364,16 @@ def second_moments(ws: np.ndarray, ex: np.ndarray, ey: np.ndarray, scratch: np.n
 def later_within(x: np.ndarray, y: np.ndarray, radius: float) -> np.ndarray:
     """Mask of points within ``radius`` of an earlier point in the arrays' order.
 
-    Sorted by x, each point is compared only with those within ``radius`` in x.
+    Up to ``_DENSE_POINTS`` points (a tracked frame's few dozen stars) every pair is
+    compared in one (n, n) array: a third of the numpy calls of the sorted search.
+    More, sorted by x, each point is compared only with those within ``radius`` in x.
     """
     n = len(x)
+    if n <= _DENSE_POINTS:
+        close = np.hypot(x[:, None] - x, y[:, None] - y) <= radius
+        close &= _EARLIER[:n, :n]
+        return close.any(axis=1)
     later = np.zeros(n, bool)
-    if n < 2:
-        return later
     order = np.argsort(x, kind="stable")
     xs, ys = x[order], y[order]
     stop = np.searchsorted(xs, xs + radius, side="right")
