@@ -160,6 +160,8 @@ class BackgroundGrid:
         tile_cols = _tile_of(cols, nx, layout.pad, layout.stride)
         self.tile_index = (tile_rows[:, None] * nx + tile_cols[None, :]).astype(np.int32).ravel()
         self.tile_scratch = np.zeros(int(capacity), np.int32)
+        # a row of tiles' frame rows (cap_over_in_tiles)
+        self.band = np.zeros((int(np.max(np.diff(self.row_edges))), cols), np.float32)
 
     def above_nearby(self) -> np.ndarray:
         """Lattice samples above their tile's level in each tile's 3x3 neighbourhood, after
@@ -380,6 +382,19 @@ class BackgroundGrid:
             caps = np.where(tiles[ty], grid[ty], np.inf).astype(dst.dtype)[self.col_tile]
             part = dst[self.row_edges[ty]:self.row_edges[ty + 1]]
             np.minimum(part, caps, out=part)
+
+    def cap_over_in_tiles(self, grid: np.ndarray, dst: np.ndarray, base: np.ndarray,
+                          tiles: np.ndarray) -> None:
+        """Hold ``dst`` (interior view) at or under ``base`` (an image of its shape) plus
+        ``grid``'s own value in the tiles marked in ``tiles`` (bool, grid shape): there
+        the interpolation of ``dst`` - ``base`` towards a neighbour's larger value is not
+        followed."""
+        for ty in np.flatnonzero(tiles.any(axis=1)):
+            rows = slice(self.row_edges[ty], self.row_edges[ty + 1])
+            band = self.band[:rows.stop - rows.start]
+            caps = np.where(tiles[ty], grid[ty], np.inf).astype(dst.dtype)[self.col_tile]
+            np.add(base[rows], caps, out=band)
+            np.minimum(dst[rows], band, out=dst[rows])
 
     def at(self, grid: np.ndarray, flat: np.ndarray, out: np.ndarray) -> np.ndarray:
         """Values of ``grid`` at padded flat indices (nearest tile), into ``out``.
