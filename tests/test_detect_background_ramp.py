@@ -50,3 +50,23 @@ def test_noise_under_glare_rising_to_a_corner_is_no_star():
         corner += int(np.count_nonzero((stars["x"] > 247.5) & (stars["y"] > 247.5)))
     assert total <= 20
     assert corner <= 1
+
+
+def test_an_image_over_a_base_is_capped_at_a_marked_tiles_own_value():
+    """BackgroundGrid.cap_over_in_tiles: in the marked tiles an image stands at most the
+    tile's grid value over the base (a ramp here), in place; elsewhere it is untouched."""
+    layout = PaddedLayout((128, 160), 8)
+    grid = BackgroundGrid(layout, 32, 4, 64)
+    yy, xx = np.mgrid[0:128, 0:160].astype(np.float32)
+    base = 10.0 + 0.5 * xx
+    _, dst = layout.buffer(np.float32)
+    dst[:] = base + 0.1 * yy                      # 0 to 12.7 over the base
+    before = dst.copy()
+    values = np.full(grid.grid_shape, 5.0, np.float32)
+    marked = np.zeros(grid.grid_shape, bool)
+    marked[1, 2] = marked[3, 0] = True
+    grid.cap_over_in_tiles(values, dst, base, marked)
+    tile = marked[np.minimum(yy // 32, 3).astype(int), np.minimum(xx // 32, 4).astype(int)]
+    np.testing.assert_array_equal(dst[~tile], before[~tile])
+    np.testing.assert_allclose(dst[tile], np.minimum(before[tile], base[tile] + 5.0), atol=1e-5)
+    assert np.any(dst[tile] < before[tile])

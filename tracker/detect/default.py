@@ -20,7 +20,10 @@ handled, sigma 3.5 px):
    threshold rather than a blend with full scale. Where such a tile (across the
    edge or beside a saturated one) is at the sky's level, the 3x3 median of its
    filtered statistics (step 5) is taken over its sky neighbours only, not over
-   the ground's tiles below it.
+   the ground's tiles below it. A smooth tile (its pixel and filtered noise within
+   1.6 times the smooth sky's at its level) beside a body's tile that is not smooth
+   keeps its own threshold over the background, not one interpolated towards the
+   spread the body's edge gives that tile's filtered statistics.
 3. ``impulses``: hot pixels, cosmic-ray tracks and salt-and-pepper pixels,
    recognised by being much sharper than the sharpest PSF the detector
    handles (sigma 0.45 px), are replaced by their 3x3 median and counted
