@@ -147,7 +147,6 @@ class BackgroundGrid:
         self.detrended = np.zeros(self.index.shape, np.float32)
         self.trend = np.zeros(self.index.shape, np.float32)
         self.slope = np.zeros((2,) + self.grid_shape, np.float32)
-        self.centre = np.zeros(self.grid_shape, np.float32)
         self.deviation = np.zeros(self.middle.shape, np.float32)
         self.raw = np.zeros(self.grid_shape, np.float32)
         self.level_raw = np.zeros(self.grid_shape, np.float32)
@@ -258,11 +257,9 @@ class BackgroundGrid:
             self.level_raw[dark_side], sky_noise = sky_part(
                 values[dark_side], self.samples[dark_side], self.sky_size[dark_side])
         self._smooth(self.level_raw, level)
-        spread = self.samples
+        # about the level: the trend's plane has no mean over the tile's samples
+        spread = self._detrend() if lattice else self.samples
         centre = self.level_raw
-        if lattice:
-            spread, centre = self._detrend(), self.centre
-            _mean(spread[..., m // 4: m - m // 4], centre)
         np.subtract(spread[..., m // 4: m - m // 4], centre[..., None], out=self.deviation)
         np.abs(self.deviation, out=self.deviation)
         _mean(self.deviation, self.raw)
@@ -323,6 +320,8 @@ class BackgroundGrid:
             after = np.concatenate([steps, steps.take([-2], axis=axis)], axis=axis)
             np.minimum(np.maximum(before, 0.0), np.maximum(after, 0.0), out=slope)
             slope += np.maximum(np.minimum(before, 0.0), np.minimum(after, 0.0))
+            # a rise of under an ADU across the tile is below the integers' resolution
+            slope[np.abs(slope) * np.float32(step) < 1.0] = 0.0
         np.add(self.int_samples, self.dither, out=self.detrended)
         np.multiply(self.offset_y, self.slope[0][..., None], out=self.trend)
         np.subtract(self.detrended, self.trend, out=self.detrended)
