@@ -20,7 +20,10 @@ handled, sigma 3.5 px):
    threshold rather than a blend with full scale. Where such a tile (across the
    edge or beside a saturated one) is at the sky's level, the 3x3 median of its
    filtered statistics (step 5) is taken over its sky neighbours only, not over
-   the ground's tiles below it.
+   the ground's tiles below it. A smooth tile (its pixel and filtered noise within
+   1.6 times the smooth sky's at its level) beside a body's tile that is not smooth
+   keeps its own threshold over the background, not one interpolated towards the
+   spread the body's edge gives that tile's filtered statistics.
 3. ``impulses``: hot pixels, cosmic-ray tracks and salt-and-pepper pixels,
    recognised by being much sharper than the sharpest PSF the detector
    handles (sigma 0.45 px), are replaced by their 3x3 median and counted
@@ -463,6 +466,9 @@ class DefaultDetector:
         self.sky_model = (0.0, 0.0, 0.0)   # the frame's sky noise model (_mark_dark_side)
         self.noise_clips = False           # the sky's noise reaches full scale (_set_filter)
         self.near_texture = np.zeros(grid_shape, np.bool_)
+        self.body_tiles = np.zeros(grid_shape, np.bool_)      # _mark_own_threshold's ...
+        self.own_threshold = np.zeros(grid_shape, np.bool_)   # ... and its smooth tiles
+        self.term_grid = np.zeros(grid_shape, np.float32)     # threshold over background
         self.off_sky = np.zeros(grid_shape, np.bool_)
         self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
         self.surroundings = Surroundings(layout.stride, sky_radius, cfg.max_candidates, _CHUNK,
@@ -792,6 +798,7 @@ class DefaultDetector:
         self.sky_edge &= self.beside_body
         if self.sky_edge.any():
             self._sky_side_median(((grid.level_raw, self.residual), (grid.raw, self.noise_f)))
+        self._mark_own_threshold()
         self._tail_threshold()
         self._constant_sky()
         self._make_threshold(1.0)
@@ -1209,12 +1216,15 @@ class DefaultDetector:
     def _make_threshold(self, factor: float) -> None:
         """Threshold image: background + level left + factor * threshold_k * noise; its
         height is raised near the borders by :meth:`_raise_edges`, which the peak search
-        calls on each slab of rows it compares."""
-        np.multiply(self.noise_f, factor * self.threshold_k, out=self.float_grid)
-        np.add(self.float_grid, self.residual, out=self.float_grid)
-        np.add(self.float_grid, self.level, out=self.float_grid)
+        calls on each slab of rows it compares. In the ``own_threshold`` tiles the height
+        over the background is at most the tile's own (:meth:`_mark_own_threshold`)."""
+        np.multiply(self.noise_f, factor * self.threshold_k, out=self.term_grid)
+        np.add(self.term_grid, self.residual, out=self.term_grid)
+        np.add(self.term_grid, self.level, out=self.float_grid)
         self.grid.upsample(self.float_grid, self.threshold)
         self.grid.cap_in_tiles(self.float_grid, self.threshold, self.beside_body)
+        self.grid.cap_over_in_tiles(self.term_grid, self.threshold, self.bg,
+                                    self.own_threshold)
 
     def _light_clips(self, bg: np.ndarray) -> np.ndarray:
         """Whether full scale lies far above each background ``bg`` (ADU): by
@@ -1619,16 +1629,53 @@ class DefaultDetector:
         embedded |= self._one_plateau(n, cand, v)
         return embedded
 
-    def _mark_texture(self) -> None:
-        """Mark the textured tiles (noise well above the smooth sky's at their level, or
-        lit ground at saturation) in ``textured``, and them and their neighbours in
-        ``near_texture``."""
+    def _smooth_sky_variance(self) -> np.ndarray:
+        """The smooth sky's pixel variance at each tile's level (ADU^2, grid shape; the
+        frame's sky noise model, tracker.detect.surroundings.sky_noise_model) in
+        ``float_grid``, which is returned."""
         level0, var0, slope = self.sky_model
         np.subtract(self.level, level0, out=self.float_grid)
         np.maximum(self.float_grid, 0.0, out=self.float_grid)
         np.multiply(self.float_grid, slope, out=self.float_grid)
         np.add(self.float_grid, var0, out=self.float_grid)
-        np.multiply(self.float_grid, _TEXTURE_NOISE ** 2, out=self.float_grid)
+        return self.float_grid
+
+    def _mark_own_threshold(self) -> None:
+        """Mark in ``own_threshold`` the smooth tiles beside a body's tile that is not: the
+        threshold over the background there is the tile's own (:meth:`_make_threshold`),
+        not interpolated towards that neighbour's.
+
+        A tile is smooth when its pixel noise is within ``_TEXTURE_NOISE`` of the
+        smooth sky's at its level (not ``textured``) and so is its own filtered
+        noise, against that sky's filtered noise (its pixel noise times the
+        filter's gain for white noise): its pixels are sky, glare or a ghost's
+        flat disc with the photon noise of their light, and its own figure is
+        theirs. A body's tile (textured, across an edge, or beside a saturated
+        one) that is not smooth holds the filtered frame less the background
+        spread by the body's light the filter carries over its edge and by the
+        background's ramp towards it, not by noise: interpolated from its centre
+        into the smooth tile beside it, that spread raised the threshold over
+        stars a tile away from the body (issue 12).
+        """
+        self._mark_texture()
+        smooth = self.own_threshold                       # scratch until the last step
+        np.sqrt(self._smooth_sky_variance(), out=self.float_grid)
+        np.multiply(self.float_grid, _TEXTURE_NOISE * self.filter_gain, out=self.float_grid)
+        np.less_equal(self.grid.raw, self.float_grid, out=smooth)
+        smooth &= ~self.textured
+        body = self.body_tiles
+        np.logical_or(self.textured, self.dark_side, out=body)
+        body |= self.near_body
+        body &= ~smooth
+        np.copyto(self.float_grid, smooth)               # the smooth tiles, kept ...
+        cv2.dilate(body.view(np.uint8), _TILE_NEIGHBOURS, dst=smooth.view(np.uint8))
+        smooth &= self.float_grid > 0.0                  # ... beside a body's tile
+
+    def _mark_texture(self) -> None:
+        """Mark the textured tiles (noise well above the smooth sky's at their level, or
+        lit ground at saturation) in ``textured``, and them and their neighbours in
+        ``near_texture``."""
+        np.multiply(self._smooth_sky_variance(), _TEXTURE_NOISE ** 2, out=self.float_grid)
         np.greater(np.square(self.noise), self.float_grid, out=self.textured)
         self.textured |= self.level >= _SATURATED_TILE * self.saturation   # flat, but ground
         cv2.dilate(self.textured.view(np.uint8), _TILE_NEIGHBOURS,
