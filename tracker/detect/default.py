@@ -1538,6 +1538,7 @@ class DefaultDetector:
         coef = np.zeros((len(spots), 6))
         cov = np.zeros((len(spots), 3, 3))
         enough = np.ones(len(spots), bool)
+        clipped = np.zeros((len(spots), offsets.size), bool)
         # _LINE_CHUNK spots at a time: the fit's (m, 6, 25) basis stays small
         for first in range(0, len(spots), _LINE_CHUNK):
             part = slice(first, first + _LINE_CHUNK)
@@ -1547,6 +1548,7 @@ class DefaultDetector:
             if usable.all():
                 usable = None        # nothing clipped: every pixel fitted, no weights
             else:
+                np.logical_not(usable, out=clipped[part])
                 enough[part] = np.count_nonzero(usable, axis=1) >= LINE_USABLE
                 usable |= ~enough[part, None]   # fitted whole, not tested
             light = raw.astype(np.float64)
@@ -1555,8 +1557,10 @@ class DefaultDetector:
             coef[part], cov[part] = line_fit(light, phase_x[part], phase_y[part],
                                              noise[spots[part]], self.psf.sigma_px,
                                              usable=usable)
+        clipped[~saturated] = False
         out[spots] = track_spots(coef, cov, (v["snr"][spots] >= LINE_REFERENCE_SNR) & ~saturated,
-                                 self.psf.sigma_px, self._measured_spots(centre)) & enough
+                                 self.psf.sigma_px, self._measured_spots(centre), fitted=enough,
+                                 clipped=clipped, ellipticity=self.psf.ellipticity)
         return out
 
     def _measured_spots(self, centre: np.ndarray) -> np.ndarray | None:

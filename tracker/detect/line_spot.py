@@ -65,6 +65,20 @@ clipped core is the same. A star's clipped core is round and centred on
 its PSF, its ring the PSF's wings; a track's core is as elongated as its
 light and its ring falls off as fast as its charge's diffusion.
 
+A saturated spot's clipped core is judged by its own shape too
+(:func:`clipped_lines`), on untrailed frames. A star's is a superlevel set of
+its PSF: an ellipse of the PSF's axis ratio, centred on it. Its pixels (each
+a unit square) have second moments whose minor over major variance is the
+PSF's (1 - e) / (1 + e) for ellipticity e, less the pixels' coarseness: at
+:data:`CLIP_MIN_PIXELS` pixels and more, a round PSF's core reads at least 4 / 9
+at the worst pixel phase (a 2 x 3 block). A particle's clipped core is a
+line, its variance across the diffusion's and along it the path's. A core
+whose ratio lies below :data:`_CLIP_RATIO` of the PSF's is a track (a third
+of a round PSF's: three quarters of the worst phase's 4 / 9). The core is
+the clipped pixels of the 5 x 5 4-connected to the clipped pixel nearest
+the centre, so saturated ground or a neighbour's core beside it is not
+counted.
+
 The 6 x 6 normal equations are solved by Gauss-Jordan elimination written
 out over the spots (no LAPACK call, whose BLAS threads would spin on the
 core the detector's own slab thread runs on).
@@ -75,14 +89,16 @@ from __future__ import annotations
 import math
 from statistics import NormalDist
 
+import cv2
 import numpy as np
 
 from tracker.detect.order import median
 from tracker.detect.significance import SHOT_ADU
 from tracker.normal import erf
 
-__all__ = ["LINE_RADIUS", "LINE_REFERENCE_SNR", "LINE_REFERENCE_SPOTS", "LINE_USABLE", "Z_ACROSS",
-           "Z_LINE", "Z_NARROW", "line_fit", "track_spots"]
+__all__ = ["CLIP_MIN_PIXELS", "LINE_RADIUS", "LINE_REFERENCE_SNR", "LINE_REFERENCE_SPOTS",
+           "LINE_USABLE", "Z_ACROSS", "Z_LINE", "Z_NARROW", "clipped_lines", "line_fit",
+           "track_spots"]
 
 LINE_RADIUS = 2                # the 5 x 5 pixels around the spot's central pixel
 LINE_USABLE = 16               # a saturated spot is fitted on at least this many of them
@@ -95,6 +111,8 @@ _NARROW_TRACE = 0.25           # a hit's trace below the stars' by at least this
 LINE_REFERENCE_SNR = 30.0          # spots this significant, unsaturated, set the stars' shear
 LINE_REFERENCE_SPOTS = 5           # ... when there are at least this many
 _TRAILED_SHEAR = 0.25          # the stars' shear over sigma^2 beyond this: a trailed frame
+CLIP_MIN_PIXELS = 6            # a clipped core judged by its shape from this many pixels
+_CLIP_RATIO = 1.0 / 3.0        # ... a line below this x the PSF's minor/major variance
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 
 
@@ -178,14 +196,20 @@ def line_fit(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarray,
 
 
 def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
-                sigma_px: float, measured: np.ndarray | None = None) -> np.ndarray:
+                sigma_px: float, measured: np.ndarray | None = None,
+                fitted: np.ndarray | None = None, clipped: np.ndarray | None = None,
+                ellipticity: float = 0.0) -> np.ndarray:
     """The spots that are particles' tracks (module docstring): (m,) bool.
 
     ``coef``, ``cov``: :func:`line_fit`'s; ``reference``: the spots (m,) bool
     that may set the frame's stars' shear (bright, unsaturated); ``measured``: the
     spots (m,) bool the frame's PSF was measured on (stars, isolated and round), whose
-    width sets the stars' for the test of spots narrower overall (none: not tested).
-    """
+    width sets the stars' for the test of spots narrower overall (none: not tested);
+    ``fitted``: the spots (m,) bool whose fit is judged (none: all; a saturated spot
+    with too few unclipped pixels is not); ``clipped``: each spot's 5 x 5 pixels
+    (m, 25) bool, row by row, that light clipped, judged by :func:`clipped_lines`
+    against the PSF's ``ellipticity`` when the frame's stars set an untrailed shape
+    (none: not judged)."""
     flux = coef[:, 0]
     fit = flux > 0.0
     scale = 1.0 / np.where(fit, flux, 1.0)
@@ -194,23 +218,60 @@ def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
     value = np.einsum("jk,mk->mj", combos, coef[:, _SECOND]) * scale[:, None]
     variance = sigma_px ** 2
     var = np.einsum("jk,mkl,jl->mj", combos, cov, combos) * np.square(scale)[:, None]
-    out = _elongated(coef, cov, value, var, reference & fit, variance, scale)
+    shape = _stars_shape(value, reference & fit, variance)
+    out = np.zeros(len(value), bool)
+    if shape is not None:
+        out = _elongated(coef, cov, value, var, shape, variance, scale)
     if measured is not None:
         out |= _narrow(value, var, measured & fit, variance)
-    return fit & out
+    out &= fit if fitted is None else fit & fitted
+    if shape is not None and clipped is not None:
+        out |= clipped_lines(clipped, ellipticity)
+    return out
+
+
+def clipped_lines(clipped: np.ndarray, ellipticity: float) -> np.ndarray:
+    """The spots whose clipped core is a line, not a star's PSF (module docstring):
+    (m,) bool. ``clipped``: each spot's 5 x 5 pixels (m, 25) bool, row by row, that
+    light clipped; ``ellipticity``: the PSF's, (a^2 - b^2) / (a^2 + b^2)."""
+    out = np.zeros(len(clipped), bool)
+    side = 2 * LINE_RADIUS + 1
+    limit = _CLIP_RATIO * (1.0 - ellipticity) / (1.0 + ellipticity)
+    for i in np.flatnonzero(np.count_nonzero(clipped, axis=1) >= CLIP_MIN_PIXELS):
+        count, labels = cv2.connectedComponents(
+            clipped[i].reshape(side, side).astype(np.uint8), connectivity=4)
+        rows, cols = np.nonzero(labels)
+        nearest = np.argmin(np.square(rows - LINE_RADIUS) + np.square(cols - LINE_RADIUS))
+        core = labels[rows, cols] == labels[rows[nearest], cols[nearest]]
+        if np.count_nonzero(core) < CLIP_MIN_PIXELS:
+            continue
+        y, x = rows[core].astype(float), cols[core].astype(float)
+        # each pixel a unit square: its own 1/12 px^2 on either axis
+        cxx, cyy = x.var() + 1.0 / 12.0, y.var() + 1.0 / 12.0
+        cxy = np.mean((x - x.mean()) * (y - y.mean()))
+        half_sum = 0.5 * (cxx + cyy)
+        spread = math.hypot(0.5 * (cxx - cyy), cxy)
+        out[i] = half_sum - spread < limit * (half_sum + spread)
+    return out
+
+
+def _stars_shape(value: np.ndarray, ref: np.ndarray, variance: float) -> np.ndarray | None:
+    """The frame's stars' shear and trace (3,), the ``ref`` spots' medians; None when
+    fewer than ``LINE_REFERENCE_SPOTS`` set it or the frame is trailed (their shear
+    beyond ``_TRAILED_SHEAR`` of the PSF's ``variance``)."""
+    if np.count_nonzero(ref) < LINE_REFERENCE_SPOTS:
+        return None
+    shape = np.array([median(value[ref, j]) for j in range(3)])
+    if math.hypot(shape[0], shape[1]) > _TRAILED_SHEAR * variance:
+        return None
+    return shape
 
 
 def _elongated(coef: np.ndarray, cov: np.ndarray, value: np.ndarray, var: np.ndarray,
-               ref: np.ndarray, variance: float, scale: np.ndarray) -> np.ndarray:
-    """The spots whose shear differs from the ``ref`` spots' median and that are narrower
-    across than they are (module docstring); none when fewer than
-    ``LINE_REFERENCE_SPOTS`` set it or the frame is trailed. ``value``: each spot's
-    shear and trace (m, 3), ``var`` their variances, ``scale`` 1 / flux."""
-    if np.count_nonzero(ref) < LINE_REFERENCE_SPOTS:
-        return np.zeros(len(value), bool)
-    shape = np.array([median(value[ref, j]) for j in range(3)])
-    if math.hypot(shape[0], shape[1]) > _TRAILED_SHEAR * variance:
-        return np.zeros(len(value), bool)
+               shape: np.ndarray, variance: float, scale: np.ndarray) -> np.ndarray:
+    """The spots whose shear differs from the frame's stars' ``shape`` (:func:`_stars_shape`)
+    and that are narrower across than they are (module docstring). ``value``: each
+    spot's shear and trace (m, 3), ``var`` their variances, ``scale`` 1 / flux."""
     diff = value - shape[None, :]
     field = (_FIELD_SHEAR * variance) ** 2
     z_shear = np.hypot(diff[:, 0] / np.sqrt(var[:, 0] + field),
