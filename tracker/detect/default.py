@@ -1558,9 +1558,15 @@ class DefaultDetector:
                                              noise[spots[part]], self.psf.sigma_px,
                                              usable=usable)
         clipped[~saturated] = False
+        psf = self.psf
+        # the PSF measured on this frame's stars: its own shear about the round sigma^2
+        psf_shear = (psf.ellipticity * psf.sigma_px ** 2
+                     * np.array([math.cos(2.0 * psf.angle_rad), math.sin(2.0 * psf.angle_rad)])
+                     if psf.stars else None)
         out[spots] = track_spots(coef, cov, (v["snr"][spots] >= LINE_REFERENCE_SNR) & ~saturated,
-                                 self.psf.sigma_px, self._measured_spots(centre), fitted=enough,
-                                 clipped=clipped, ellipticity=self.psf.ellipticity)
+                                 psf.sigma_px, self._measured_spots(centre), fitted=enough,
+                                 clipped=clipped, ellipticity=psf.ellipticity,
+                                 psf_shear=psf_shear)
         return out
 
     def _measured_spots(self, centre: np.ndarray) -> np.ndarray | None:

@@ -42,7 +42,16 @@ convention). The frame's stars set the reference only when at least
 :data:`LINE_REFERENCE_SPOTS` of them are bright, and a frame whose stars are
 trailed (their shear over the PSF's variance beyond
 :data:`_TRAILED_SHEAR`) is not tested for elongation: a trail is no
-second-order change of the PSF.
+second-order change of the PSF. With fewer bright spots (a lunar frame of a
+particle event, its few bright stars outnumbered by tracks) the PSF measured
+on the frame's own stars sets the stars' shape: its ellipticity e at angle t
+is a shear e sigma^2 (cos 2t, sin 2t) about the fit's round sigma^2 and a
+trace of 0, known less well than the median of many bright spots, so each
+standard error takes :data:`_PSF_FIELD_SHEAR` of the PSF's variance (the
+field's and as much for the few stars' measurement; across the elongation,
+where the reference is the trace less half the shear, half of it beside the
+field's) and the shear's limit is :data:`Z_PSF_LINE` (a star's chance 1 in
+10^5).
 
 A hit of 1-1.5 px, round, is no longer than it is wide: its charge cloud
 alone, with no optics to blur it, is narrower overall than the stars, its
@@ -97,8 +106,8 @@ from tracker.detect.significance import SHOT_ADU
 from tracker.normal import erf
 
 __all__ = ["CLIP_MIN_PIXELS", "LINE_RADIUS", "LINE_REFERENCE_SNR", "LINE_REFERENCE_SPOTS",
-           "LINE_USABLE", "Z_ACROSS", "Z_LINE", "Z_NARROW", "clipped_lines", "line_fit",
-           "track_spots"]
+           "LINE_USABLE", "Z_ACROSS", "Z_LINE", "Z_NARROW", "Z_PSF_LINE", "clipped_lines",
+           "line_fit", "track_spots"]
 
 LINE_RADIUS = 2                # the 5 x 5 pixels around the spot's central pixel
 LINE_USABLE = 16               # a saturated spot is fitted on at least this many of them
@@ -111,6 +120,9 @@ _NARROW_TRACE = 0.25           # a hit's trace below the stars' by at least this
 LINE_REFERENCE_SNR = 30.0          # spots this significant, unsaturated, set the stars' shear
 LINE_REFERENCE_SPOTS = 5           # ... when there are at least this many
 _TRAILED_SHEAR = 0.25          # the stars' shear over sigma^2 beyond this: a trailed frame
+Z_PSF_LINE = math.sqrt(-2.0 * math.log(1e-5))   # against the PSF's own shape: 1 in 10^5
+_PSF_FIELD_SHEAR = 0.10        # ... each standard error with this x sigma^2: the field's
+                               # _FIELD_SHEAR and as much for the few stars' measurement
 CLIP_MIN_PIXELS = 6            # a clipped core judged by its shape from this many pixels
 _CLIP_RATIO = 1.0 / 3.0        # ... a line below this x the PSF's minor/major variance
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
@@ -198,7 +210,7 @@ def line_fit(light: np.ndarray, phase_x: np.ndarray, phase_y: np.ndarray,
 def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
                 sigma_px: float, measured: np.ndarray | None = None,
                 fitted: np.ndarray | None = None, clipped: np.ndarray | None = None,
-                ellipticity: float = 0.0) -> np.ndarray:
+                ellipticity: float = 0.0, psf_shear: np.ndarray | None = None) -> np.ndarray:
     """The spots that are particles' tracks (module docstring): (m,) bool.
 
     ``coef``, ``cov``: :func:`line_fit`'s; ``reference``: the spots (m,) bool
@@ -209,25 +221,41 @@ def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
     with too few unclipped pixels is not); ``clipped``: each spot's 5 x 5 pixels
     (m, 25) bool, row by row, that light clipped, judged by :func:`clipped_lines`
     against the PSF's ``ellipticity`` when the frame's stars set an untrailed shape
-    (none: not judged)."""
-    flux = coef[:, 0]
-    fit = flux > 0.0
-    scale = 1.0 / np.where(fit, flux, 1.0)
-    # (dCxx - dCyy) / 2, dCxy and (dCxx + dCyy) / 2 as combinations of hxx, hxy, hyy
-    combos = np.array([[1, 0, -1], [0, 1, 0], [1, 0, 1]], float)
-    value = np.einsum("jk,mk->mj", combos, coef[:, _SECOND]) * scale[:, None]
+    (none: not judged); ``psf_shear``: the PSF measured on this frame's stars, its
+    ((Cxx - Cyy) / 2, Cxy) about sigma^2 I (px^2), sets the stars' shape when too few
+    bright spots do (none: not tested then)."""
+    fit, scale, value, var = _shapes(coef, cov)
     variance = sigma_px ** 2
-    var = np.einsum("jk,mkl,jl->mj", combos, cov, combos) * np.square(scale)[:, None]
     shape = _stars_shape(value, reference & fit, variance)
+    field, across, z_line = _FIELD_SHEAR, _FIELD_SHEAR, Z_LINE
+    if shape is None and psf_shear is not None:
+        shape = _psf_shape(psf_shear, variance)
+        # across, the reference is the trace less the shear along: half the shear's spread
+        field, across, z_line = (_PSF_FIELD_SHEAR, math.hypot(_FIELD_SHEAR, 0.5 * _PSF_FIELD_SHEAR),
+                                 Z_PSF_LINE)
     out = np.zeros(len(value), bool)
     if shape is not None:
-        out = _elongated(coef, cov, value, var, shape, variance, scale)
+        out = _elongated(coef, cov, value, var, shape, variance, scale, (field, across), z_line)
     if measured is not None:
-        out |= _narrow(value, var, measured & fit, variance)
+        stars = measured & fit
+        out |= _narrow(value, var, stars, value[stars, 2], variance)
     out &= fit if fitted is None else fit & fitted
     if shape is not None and clipped is not None:
         out |= clipped_lines(clipped, ellipticity)
     return out
+
+
+def _shapes(coef: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Of :func:`line_fit`'s ``coef`` and ``cov``: which spots have a positive flux (m,),
+    1 / flux (m,), and their shear and trace (dCxx - dCyy) / 2, dCxy, (dCxx + dCyy) / 2
+    with those's variances (m, 3) each."""
+    flux = coef[:, 0]
+    fit = flux > 0.0
+    scale = 1.0 / np.where(fit, flux, 1.0)
+    combos = np.array([[1, 0, -1], [0, 1, 0], [1, 0, 1]], float)
+    value = np.einsum("jk,mk->mj", combos, coef[:, _SECOND]) * scale[:, None]
+    var = np.einsum("jk,mkl,jl->mj", combos, cov, combos) * np.square(scale)[:, None]
+    return fit, scale, value, var
 
 
 def clipped_lines(clipped: np.ndarray, ellipticity: float) -> np.ndarray:
@@ -267,13 +295,26 @@ def _stars_shape(value: np.ndarray, ref: np.ndarray, variance: float) -> np.ndar
     return shape
 
 
+def _psf_shape(psf_shear: np.ndarray, variance: float) -> np.ndarray | None:
+    """The stars' shear and trace (3,) of the PSF measured on the frame (the fit's
+    round sigma^2 is its own, so a trace of 0); None when it is trailed (as
+    :func:`_stars_shape`)."""
+    if math.hypot(psf_shear[0], psf_shear[1]) > _TRAILED_SHEAR * variance:
+        return None
+    return np.array([psf_shear[0], psf_shear[1], 0.0])
+
+
 def _elongated(coef: np.ndarray, cov: np.ndarray, value: np.ndarray, var: np.ndarray,
-               shape: np.ndarray, variance: float, scale: np.ndarray) -> np.ndarray:
-    """The spots whose shear differs from the frame's stars' ``shape`` (:func:`_stars_shape`)
-    and that are narrower across than they are (module docstring). ``value``: each
-    spot's shear and trace (m, 3), ``var`` their variances, ``scale`` 1 / flux."""
+               shape: np.ndarray, variance: float, scale: np.ndarray,
+               field_share: tuple[float, float], z_line: float) -> np.ndarray:
+    """The spots whose shear differs from the stars' ``shape`` (:func:`_stars_shape` or
+    :func:`_psf_shape`) by ``z_line`` standard errors and that are narrower across than
+    they are by ``Z_ACROSS`` (module docstring), each standard error with the
+    reference's own spread added, ``field_share`` (shear, across) of the PSF's
+    ``variance``. ``value``: each spot's shear and trace (m, 3), ``var`` their
+    variances, ``scale`` 1 / flux."""
     diff = value - shape[None, :]
-    field = (_FIELD_SHEAR * variance) ** 2
+    field = (field_share[0] * variance) ** 2
     z_shear = np.hypot(diff[:, 0] / np.sqrt(var[:, 0] + field),
                        diff[:, 1] / np.sqrt(var[:, 1] + field))
     # across the elongation: its unit normal (nx, ny) = (-sin t, cos t) for the shear's
@@ -284,19 +325,20 @@ def _elongated(coef: np.ndarray, cov: np.ndarray, value: np.ndarray, var: np.nda
     across_value = np.einsum("mk,mk->m", across, coef[:, _SECOND]) * scale
     across_ref = (shape[2] - np.cos(2 * angle) * shape[0] - np.sin(2 * angle) * shape[1]) / 2
     across_var = np.einsum("mk,mkl,ml->m", across, cov, across) * np.square(scale)
-    z_across = (across_ref - across_value) / np.sqrt(across_var + field)
+    z_across = (across_ref - across_value) / np.sqrt(across_var + (field_share[1] * variance) ** 2)
     shear = np.hypot(diff[:, 0], diff[:, 1])
-    return (z_shear > Z_LINE) & (z_across > Z_ACROSS) & (shear > _LINE_SHEAR * variance)
+    return (z_shear > z_line) & (z_across > Z_ACROSS) & (shear > _LINE_SHEAR * variance)
 
 
-def _narrow(value: np.ndarray, var: np.ndarray, stars: np.ndarray,
+def _narrow(value: np.ndarray, var: np.ndarray, stars: np.ndarray, traces: np.ndarray,
             variance: float) -> np.ndarray:
-    """The spots whose trace, (dCxx + dCyy) / 2, lies below the ``stars``' median by
-    ``Z_NARROW`` standard errors and ``_NARROW_TRACE`` of the PSF's variance (module
-    docstring); none when fewer than ``LINE_REFERENCE_SPOTS`` stars set it."""
+    """The spots whose trace, (dCxx + dCyy) / 2, lies below the median of the ``stars``'
+    ``traces`` by ``Z_NARROW`` standard errors and ``_NARROW_TRACE`` of the PSF's
+    variance (module docstring); none when fewer than ``LINE_REFERENCE_SPOTS`` stars
+    set it."""
     if np.count_nonzero(stars) < LINE_REFERENCE_SPOTS:
         return np.zeros(len(value), bool)
-    deficit = median(value[stars, 2]) - value[:, 2]
+    deficit = median(traces) - value[:, 2]
     field = (_FIELD_SHEAR * variance) ** 2
     return ((deficit > _NARROW_TRACE * variance)
             & (deficit > Z_NARROW * np.sqrt(var[:, 2] + field)))
