@@ -166,6 +166,7 @@ from tracker.detect.line_spot import (
     LINE_REFERENCE_SNR,
     LINE_REFERENCE_SPOTS,
     LINE_USABLE,
+    floor_fit,
     line_fit,
     track_spots,
 )
@@ -1558,6 +1559,9 @@ class DefaultDetector:
                                              noise[spots[part]], self.psf.sigma_px,
                                              usable=usable)
         clipped[~saturated] = False
+        floor = self._floor_fit(spots, centre, offsets, phase_x, phase_y, noise, level,
+                                np.flatnonzero(enough & (np.count_nonzero(clipped, axis=1) == 1)),
+                                clipped)
         psf = self.psf
         # the PSF measured on this frame's stars: its own shear about the round sigma^2
         psf_shear = (psf.ellipticity * psf.sigma_px ** 2
@@ -1566,8 +1570,24 @@ class DefaultDetector:
         out[spots] = track_spots(coef, cov, (v["snr"][spots] >= LINE_REFERENCE_SNR) & ~saturated,
                                  psf.sigma_px, self._measured_spots(centre), fitted=enough,
                                  clipped=clipped, ellipticity=psf.ellipticity,
-                                 psf_shear=psf_shear)
+                                 psf_shear=psf_shear, floor=floor)
         return out
+
+    def _floor_fit(self, spots: np.ndarray, centre: np.ndarray, offsets: np.ndarray,
+                   phase_x: np.ndarray, phase_y: np.ndarray, noise: np.ndarray,
+                   level: np.ndarray, single: np.ndarray, clipped: np.ndarray):
+        """tracker.detect.line_spot.floor_fit of the saturated spots ``single`` (indices
+        among ``spots``, of one clipped pixel each): their fits with that pixel at its
+        floor, those whose trace there bounds theirs, and the indices; None if none."""
+        if len(single) == 0:
+            return None
+        at = centre[single, None] + offsets
+        light = np.take(self.input.padded.ravel(), at, mode="clip").astype(np.float64)
+        light -= np.take(self.bg_pad.ravel(), at, mode="clip")
+        light -= level[spots[single], None]
+        coef, cov, bounded = floor_fit(light, clipped[single], phase_x[single], phase_y[single],
+                                       noise[spots[single]], self.psf.sigma_px)
+        return coef[bounded], cov[bounded], single[bounded]
 
     def _measured_spots(self, centre: np.ndarray) -> np.ndarray | None:
         """Which of the spots (their central pixels ``centre``, padded flat indices) this
