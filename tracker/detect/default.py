@@ -1516,16 +1516,16 @@ class DefaultDetector:
         (tracker.detect.line_spot): (n,) bool. The pixels light clipped (at or above
         ``cand_censor``, :meth:`_measure`) are left out of the fit, and a saturated spot is
         tested when at least ``LINE_USABLE`` of its 5 x 5 are left (a track's clipped core
-        is as elongated as its light, a star's round). Spots ``untested`` (saturated where
-        the sky's noise, not light, reaches full scale) and those whose 5 x 5 reaches
-        beyond the frame are not tested."""
+        is as elongated as its light, a star's round). A spot whose 5 x 5 reaches beyond
+        the frame is fitted on its pixels inside it, as tracker.detect.edge centroids it
+        (at least ``LINE_USABLE``), and sets no reference. Spots ``untested`` (saturated
+        where the sky's noise, not light, reaches full scale) are not tested."""
         out = np.zeros(len(cand), bool)
         rows, cols = self.layout.frame_position(cand)
         ox, oy = np.rint(v["x0"]), np.rint(v["y0"])
         r = LINE_RADIUS
         h, w = self.input.shape
-        inside = ((cols + ox >= r) & (rows + oy >= r) & (cols + ox <= w - 1 - r)
-                  & (rows + oy <= h - 1 - r))
+        inside = (cols + ox >= 0) & (rows + oy >= 0) & (cols + ox < w) & (rows + oy < h)
         spots = np.flatnonzero(inside & ~untested & ~sharp & (v["weighted"] > 0))
         if len(spots) < LINE_REFERENCE_SPOTS:
             return out
@@ -1536,6 +1536,12 @@ class DefaultDetector:
         centre = (cand[spots] + oy[spots].astype(np.intp) * self.layout.stride
                   + ox[spots].astype(np.intp))
         phase_x, phase_y = v["x0"][spots] - ox[spots], v["y0"][spots] - oy[spots]
+        # each spot's 5 x 5 pixels within the frame, row by row
+        across_cols = (cols[spots] + ox[spots])[:, None] + axis
+        across_rows = (rows[spots] + oy[spots])[:, None] + axis
+        in_frame = (((across_rows >= 0) & (across_rows < h))[:, :, None]
+                    & ((across_cols >= 0) & (across_cols < w))[:, None, :]).reshape(len(spots), -1)
+        whole = in_frame.all(axis=1)
         coef = np.zeros((len(spots), 6))
         cov = np.zeros((len(spots), 3, 3))
         enough = np.ones(len(spots), bool)
@@ -1546,10 +1552,12 @@ class DefaultDetector:
             at = centre[part, None] + offsets
             raw = np.take(padded, at, mode="clip")
             usable = raw < self.cand_censor[spots[part], None]
+            usable &= in_frame[part]
             if usable.all():
                 usable = None        # nothing clipped: every pixel fitted, no weights
             else:
                 np.logical_not(usable, out=clipped[part])
+                clipped[part] &= in_frame[part]
                 enough[part] = np.count_nonzero(usable, axis=1) >= LINE_USABLE
                 usable |= ~enough[part, None]   # fitted whole, not tested
             light = raw.astype(np.float64)
@@ -1558,16 +1566,18 @@ class DefaultDetector:
             coef[part], cov[part] = line_fit(light, phase_x[part], phase_y[part],
                                              noise[spots[part]], self.psf.sigma_px,
                                              usable=usable)
-        clipped[~saturated] = False
+        clipped[~saturated | ~whole] = False   # a core the frame's edge cuts is no shape
         floor = self._floor_fit(spots, centre, offsets, phase_x, phase_y, noise, level,
-                                np.flatnonzero(enough & (np.count_nonzero(clipped, axis=1) == 1)),
+                                np.flatnonzero(enough & whole
+                                               & (np.count_nonzero(clipped, axis=1) == 1)),
                                 clipped)
         psf = self.psf
         # the PSF measured on this frame's stars: its own shear about the round sigma^2
         psf_shear = (psf.ellipticity * psf.sigma_px ** 2
                      * np.array([math.cos(2.0 * psf.angle_rad), math.sin(2.0 * psf.angle_rad)])
                      if psf.stars else None)
-        out[spots] = track_spots(coef, cov, (v["snr"][spots] >= LINE_REFERENCE_SNR) & ~saturated,
+        reference = (v["snr"][spots] >= LINE_REFERENCE_SNR) & ~saturated & whole
+        out[spots] = track_spots(coef, cov, reference,
                                  psf.sigma_px, self._measured_spots(centre), fitted=enough,
                                  clipped=clipped, ellipticity=psf.ellipticity,
                                  psf_shear=psf_shear, floor=floor)
