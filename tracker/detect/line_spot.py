@@ -252,12 +252,11 @@ def track_spots(coef: np.ndarray, cov: np.ndarray, reference: np.ndarray,
     if shape is not None:
         out = _elongated(coef, cov, value, var, shape, variance, scale, (field, across), z_line)
     if measured is not None:
-        stars = measured & fit
-        out |= _narrow(value, var, stars, value[stars, 2], variance)
+        traces = value[measured & fit, 2]
+        out |= _narrow(value, var, traces, variance)
         if floor is not None:
             floor_fitted, _, floor_value, floor_var = _shapes(*floor[:2])
-            out[floor[2]] |= floor_fitted & _narrow(floor_value, floor_var, stars,
-                                                    value[stars, 2], variance)
+            out[floor[2]] |= floor_fitted & _narrow(floor_value, floor_var, traces, variance)
     out &= fit if fitted is None else fit & fitted
     if shape is not None and clipped is not None:
         out |= clipped_lines(clipped, ellipticity)
@@ -286,9 +285,10 @@ def floor_fit(light: np.ndarray, clipped: np.ndarray, phase_x: np.ndarray,
     (m, 3, 3), bounded (m,) bool). ``light``, ``phase_x``, ``phase_y``, ``noise`` as
     :func:`line_fit`'s; ``clipped``: (m, 25) bool, one pixel a row."""
     coef, cov = line_fit(light, phase_x, phase_y, noise, sigma_px, shot_adu)
-    raised, _ = line_fit(light + clipped * light, phase_x, phase_y, noise, sigma_px, shot_adu)
+    raised, raised_cov = line_fit(light + clipped * light, phase_x, phase_y, noise, sigma_px,
+                                  shot_adu)
     fit, _, value, _ = _shapes(coef, cov)
-    raised_fit, _, raised_value, _ = _shapes(raised, cov)
+    raised_fit, _, raised_value, _ = _shapes(raised, raised_cov)
     return coef, cov, fit & raised_fit & (raised_value[:, 2] <= value[:, 2])
 
 
@@ -364,13 +364,13 @@ def _elongated(coef: np.ndarray, cov: np.ndarray, value: np.ndarray, var: np.nda
     return (z_shear > z_line) & (z_across > Z_ACROSS) & (shear > _LINE_SHEAR * variance)
 
 
-def _narrow(value: np.ndarray, var: np.ndarray, stars: np.ndarray, traces: np.ndarray,
+def _narrow(value: np.ndarray, var: np.ndarray, traces: np.ndarray,
             variance: float) -> np.ndarray:
-    """The spots whose trace, (dCxx + dCyy) / 2, lies below the median of the ``stars``'
+    """The spots whose trace, (dCxx + dCyy) / 2, lies below the median of the stars'
     ``traces`` by ``Z_NARROW`` standard errors and ``_NARROW_TRACE`` of the PSF's
     variance (module docstring); none when fewer than ``LINE_REFERENCE_SPOTS`` stars
     set it."""
-    if np.count_nonzero(stars) < LINE_REFERENCE_SPOTS:
+    if len(traces) < LINE_REFERENCE_SPOTS:
         return np.zeros(len(value), bool)
     deficit = median(traces) - value[:, 2]
     field = (_FIELD_SHEAR * variance) ** 2
