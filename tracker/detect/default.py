@@ -106,7 +106,11 @@ handled, sigma 3.5 px):
    bright body are masked (tracker.detect.surroundings): too few sky sectors
    around them, light along a line with sky across it (a crescent, a ghost's ring), or a
    clipped plateau shared with another saturated candidate (the Earth's lit
-   edge); a star beside the body keeps the sky on its side. With
+   edge); a star beside the body keeps the sky on its side. So are spots on the halo of
+   a star at least ten times brighter (its Airy rings, its wings), from the window's
+   radius to 24 PSF sigmas out, whose filtered peak clears the threshold only with the
+   halo's light under it: the median of the filtered image on the ring through the spot
+   around that star (tracker.detect.halo; a companion's light is its own). With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
    every centre instead, from the frame as delivered, which step 5 then
@@ -159,6 +163,7 @@ from tracker.detect.binned import BinnedPeaks
 from tracker.detect.edge import beyond_frame, cut_axes, inward_starts, judge_whole
 from tracker.detect.fit import PixelGaussianFit
 from tracker.detect.frame_input import FrameInput, Reason
+from tracker.detect.halo import HALO_CONTRAST, SPOT_SIGMAS, HaloRings, halo_excess
 from tracker.detect.impulse import ImpulseFilter, psf_contrast, psf_ring
 from tracker.detect.layout import PaddedLayout
 from tracker.detect.line_spot import (
@@ -263,6 +268,9 @@ _CLIPPED_NOISE_WIDTH = 1.5     # where noise clips at full scale, the filter thi
 _RATE_STEP = math.log(1.05)    # a flat sky's rate of pixels above its level, in steps of 5 %,
 _RATE_LOW = 1e-5               # ... from this (a lower rate counts as this)
 _RATE_HIGH = 0.05              # ... to this (a higher one's level is over the floor's)
+_HALO_REACH_SIGMAS = 24.0      # a star's halo is judged this many PSF sigmas out,
+_HALO_STARS = 64               # ... around this many of the brightest stars at most,
+_HALO_PAIRS = 4096             # ... for this many spots beside them at most
 
 
 def effective_sigma(psf_sigma_px: float) -> float:
@@ -473,6 +481,7 @@ class DefaultDetector:
         self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
         self.surroundings = Surroundings(layout.stride, sky_radius, cfg.max_candidates, _CHUNK,
                                          _SKY_RING_WIDTH)
+        self.halo = HaloRings(_HALO_REACH_SIGMAS * effective_sigma(SIGMA_MAX_PX))
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
                          "sharp_spots": 0, "masked": 0, "beyond_edge": 0, "candidates": 0,
                          "left_out": 0}
@@ -1430,6 +1439,7 @@ class DefaultDetector:
         # wings on some sides
         on_body = broad & (self.surroundings.sky_sectors[:n] < _BROAD_SKY_SECTORS)
         masked = (body | embedded | on_body) & ~sharp
+        masked |= self._on_halo(n, cand, v, ~(sharp | merged | masked), saturated)
         self.counters["masked"] = int(np.count_nonzero(masked))
         # a star centred beyond the frame shows less than half its light: no centre
         off = beyond_frame(cols + v["x0"], rows + v["y0"], self.input.shape)
@@ -1506,6 +1516,41 @@ class DefaultDetector:
                                np.where(faint, measured, noise[spots]), sigma_px,
                                np.where(faint, shot_adu, SHOT_ADU))
         out[spots] = z > Z_STAR_LOSS
+        return out
+
+    def _on_halo(self, n: int, cand: np.ndarray, v: dict, stars: np.ndarray,
+                  saturated: np.ndarray) -> np.ndarray:
+        """Those of the unsaturated ``stars`` whose filtered peak clears the threshold only
+        with the halo of a star at least ``HALO_CONTRAST`` times brighter under it, from
+        the window's radius to ``_HALO_REACH_SIGMAS`` PSF sigmas out (tracker.detect.halo):
+        (n,) bool."""
+        out = np.zeros(n, bool)
+        value = self.peaks.cand_values[:n]
+        faint = np.flatnonzero(stars & ~saturated)
+        if len(faint) == 0:
+            return out
+        # candidates are ranked by their filtered peak, brightest first
+        bright = np.flatnonzero(stars & (value >= HALO_CONTRAST * value[faint].min()))
+        bright = bright[:_HALO_STARS]
+        rows, cols = self.layout.frame_position(cand)
+        x, y = cols + v["x0"], rows + v["y0"]
+        radius = np.hypot(cols[faint][None, :] - x[bright][:, None],
+                          rows[faint][None, :] - y[bright][:, None])
+        pair = ((radius >= self.radius) & (radius <= _HALO_REACH_SIGMAS * self.sigma)
+                & (value[bright][:, None] >= HALO_CONTRAST * value[faint][None, :]))
+        b, f = np.nonzero(pair)
+        b, f = b[:_HALO_PAIRS], f[:_HALO_PAIRS]
+        if len(b) == 0:
+            return out
+        star, spot = bright[b], faint[f]
+        median, pixels = self.halo.light(self.filt, self.bg, x[star], y[star], radius[b, f],
+                                         x[spot], y[spot],
+                                         SPOT_SIGMAS * math.sqrt(2.0) * self.filter_sigma)
+        level = self.grid.at(self.residual, cand[spot], np.zeros(len(spot), np.float32))
+        light = halo_excess(median, pixels, level, self.peaks.cand_noise[spot],
+                            self.filter_sigma)
+        clear = self.threshold[rows[spot], cols[spot]] - self.bg[rows[spot], cols[spot]]
+        out[spot[value[spot] - light <= clear]] = True
         return out
 
     def _track_like(self, cand: np.ndarray, v: dict, noise: np.ndarray, level: np.ndarray,
