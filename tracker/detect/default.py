@@ -106,7 +106,13 @@ handled, sigma 3.5 px):
    bright body are masked (tracker.detect.surroundings): too few sky sectors
    around them, light along a line with sky across it (a crescent, a ghost's ring), or a
    clipped plateau shared with another saturated candidate (the Earth's lit
-   edge); a star beside the body keeps the sky on its side. With
+   edge); a star beside the body keeps the sky on its side. So are spots whose filtered
+   peak clears the threshold only with light under it that the background grid does
+   not hold (tracker.detect.ring_light): the halo of a star at least ten times
+   brighter (its Airy rings, its wings), from the window's radius to 24 PSF sigmas
+   out, read as the median of the filtered image on the ring through the spot around
+   that star (a companion's light is its own), or the local sky the grid lags (glare's
+   curvature, a ghost's ring), read on a ring 5 PSF sigmas around the spot. With
    ``detect.centroid_noise: multiplicative`` a maximum-likelihood fit for
    noise proportional to the light (tracker.detect.multiplicative) gives
    every centre instead, from the frame as delivered, which step 5 then
@@ -190,6 +196,15 @@ from tracker.detect.psf import (
     pixel_tensor_to_optics,
 )
 from tracker.detect.result import Detections, StarFlag
+from tracker.detect.ring_light import (
+    HALO_CONTRAST,
+    HALO_ERRORS,
+    LOCAL_ERRORS,
+    LOCAL_SKY_SIGMAS,
+    SPOT_SIGMAS,
+    LightRings,
+    light_over_sky,
+)
 from tracker.detect.roughness import StarRoughness
 from tracker.detect.sigma_steps import SigmaSteps
 from tracker.detect.significance import SHOT_ADU, shot_noise_snr
@@ -264,6 +279,10 @@ _CLIPPED_NOISE_WIDTH = 1.5     # where noise clips at full scale, the filter thi
 _RATE_STEP = math.log(1.05)    # a flat sky's rate of pixels above its level, in steps of 5 %,
 _RATE_LOW = 1e-5               # ... from this (a lower rate counts as this)
 _RATE_HIGH = 0.05              # ... to this (a higher one's level is over the floor's)
+_HALO_REACH_SIGMAS = 24.0      # a star's halo is judged this many PSF sigmas out,
+_HALO_STARS = 64               # ... around this many of the brightest stars at most,
+_HALO_PAIRS = 4096             # ... for this many spots beside them at most
+_LIGHT_CHUNK = 128             # spots whose rings are read at a time (bounds the temporaries)
 
 
 def effective_sigma(psf_sigma_px: float) -> float:
@@ -474,6 +493,7 @@ class DefaultDetector:
         self.cand_near = np.zeros(cfg.max_candidates, np.uint8)
         self.surroundings = Surroundings(layout.stride, sky_radius, cfg.max_candidates, _CHUNK,
                                          _SKY_RING_WIDTH)
+        self.rings = LightRings(_HALO_REACH_SIGMAS * effective_sigma(SIGMA_MAX_PX))
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
                          "sharp_spots": 0, "masked": 0, "beyond_edge": 0, "candidates": 0,
                          "left_out": 0}
@@ -517,6 +537,7 @@ class DefaultDetector:
             self.speckle_fit = MultiplicativeFit(self.radius, sigma_px, self.input.full_scale)
         self.expected_size = sigma ** 2  # weighted Mxx + Myy of a Gaussian star, px^2
         self.surroundings.configure(int(math.ceil(_SKY_RING_SIGMAS * sigma)))
+        self.local_ring = self.rings.offsets(LOCAL_SKY_SIGMAS * sigma, self.layout.stride)
         scalars, self.edge_gain = self.steps.get(step, lambda: self._step_constants(step))
         self.psf_filter = (kernel, scalars[0], scalars[1], self.edge_gain)
         self._filter_key = None
@@ -1431,6 +1452,7 @@ class DefaultDetector:
         # wings on some sides
         on_body = broad & (self.surroundings.sky_sectors[:n] < _BROAD_SKY_SECTORS)
         masked = (body | embedded | on_body) & ~sharp
+        masked |= self._on_light(n, cand, v, ~(sharp | merged | masked), saturated)
         self.counters["masked"] = int(np.count_nonzero(masked))
         # a star centred beyond the frame shows less than half its light: no centre
         off = beyond_frame(cols + v["x0"], rows + v["y0"], self.input.shape)
@@ -1508,6 +1530,66 @@ class DefaultDetector:
                                np.where(faint, shot_adu, SHOT_ADU))
         out[spots] = z > Z_STAR_LOSS
         return out
+
+    def _on_light(self, n: int, cand: np.ndarray, v: dict, stars: np.ndarray,
+                  saturated: np.ndarray) -> np.ndarray:
+        """Those of the unsaturated ``stars`` whose filtered peak clears the threshold only
+        with light under it that the background grid does not hold (tracker.detect.
+        ring_light): the local sky on a ring ``LOCAL_SKY_SIGMAS`` PSF sigmas around the
+        spot, or the halo of a star at least ``HALO_CONTRAST`` times brighter, from the
+        window's radius to ``_HALO_REACH_SIGMAS`` PSF sigmas out: (n,) bool."""
+        out = np.zeros(n, bool)
+        value = self.peaks.cand_values[:n]
+        faint = np.flatnonzero(stars & ~saturated)
+        if len(faint) == 0:
+            return out
+        rows, cols = self.layout.frame_position(cand)
+        # candidates are ranked by their filtered peak, brightest first
+        bright = np.flatnonzero(stars & (value >= HALO_CONTRAST * value[faint].min()))
+        bright = bright[:_HALO_STARS]
+        x, y = cols + v["x0"], rows + v["y0"]
+        h, w = self.input.shape
+        reach = int(math.ceil(LOCAL_SKY_SIGMAS * self.sigma + 0.5))   # the ring in the frame
+        pairs = 0
+        for first in range(0, len(faint), _LIGHT_CHUNK):
+            some = faint[first:first + _LIGHT_CHUNK]
+            px, py = cols[some].astype(np.float64), rows[some].astype(np.float64)
+            inside = ((rows[some] >= reach) & (cols[some] >= reach) & (rows[some] < h - reach)
+                      & (cols[some] < w - reach))
+            median = np.empty(len(some))
+            pixels = np.full(len(some), len(self.local_ring))
+            median[inside] = self.rings.around(self.filt_pad.ravel(), self.bg_pad.ravel(),
+                                               cand[some[inside]], self.local_ring)
+            cut = ~inside
+            median[cut], pixels[cut] = self.rings.light(
+                self.filt, self.bg, px[cut], py[cut],
+                np.full(np.count_nonzero(cut), LOCAL_SKY_SIGMAS * self.sigma), px[cut], py[cut],
+                0.0)
+            out[some[self._under_light(some, rows, cols, median, pixels, LOCAL_ERRORS)]] = True
+            radius = np.hypot(px[None, :] - x[bright][:, None], py[None, :] - y[bright][:, None])
+            pair = ((radius >= self.radius) & (radius <= _HALO_REACH_SIGMAS * self.sigma)
+                    & (value[bright][:, None] >= HALO_CONTRAST * value[some][None, :]))
+            b, f = np.nonzero(pair)
+            b, f = b[:_HALO_PAIRS - pairs], f[:_HALO_PAIRS - pairs]
+            pairs += len(b)
+            star, spot = bright[b], some[f]
+            ring = self.rings.light(self.filt, self.bg, x[star], y[star], radius[b, f], x[spot],
+                                    y[spot], SPOT_SIGMAS * math.sqrt(2.0) * self.filter_sigma)
+            out[spot[self._under_light(spot, rows, cols, *ring, HALO_ERRORS)]] = True
+        return out
+
+    def _under_light(self, spot: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                     median: np.ndarray, pixels: np.ndarray, errors: float) -> np.ndarray:
+        """Whether each candidate ``spot`` (indices into the candidates at frame pixels
+        ``rows``, ``cols``) falls short of the threshold once the light of its ring
+        (``median``, ``pixels``: tracker.detect.ring_light.LightRings.light) is taken
+        from its filtered peak, that light counted ``errors`` standard errors up."""
+        level = self.grid.at(self.residual, self.peaks.cand[spot],
+                             np.zeros(len(spot), np.float32))
+        light = light_over_sky(median, pixels, level, self.peaks.cand_noise[spot],
+                               self.filter_sigma, errors)
+        clear = self.threshold[rows[spot], cols[spot]] - self.bg[rows[spot], cols[spot]]
+        return self.peaks.cand_values[spot] - light <= clear
 
     def _track_like(self, cand: np.ndarray, v: dict, noise: np.ndarray, level: np.ndarray,
                     untested: np.ndarray, sharp: np.ndarray) -> np.ndarray:
