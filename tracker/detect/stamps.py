@@ -188,8 +188,9 @@ class StampDetector:
         self._stack_buffer = np.zeros(widest, np.float32)
         self._filt_buffer = np.zeros(widest, np.float32)
         self._dilated_buffer = np.zeros(widest, np.float32)
-        self.above = np.zeros((c, n, c), np.bool_)
-        self.peak = np.zeros((c, n, c), np.bool_)
+        self._above_buffer = np.zeros(widest, np.bool_)
+        self._peak_buffer = np.zeros(widest, np.bool_)
+        self._limit_buffer = np.zeros(widest // c, np.float32)   # a row's thresholds
         ring = np.zeros((c, c), bool)
         ring[:RING_PX], ring[-RING_PX:], ring[:, :RING_PX], ring[:, -RING_PX:] = (True,) * 4
         self.ring = np.flatnonzero(ring.ravel())
@@ -227,6 +228,9 @@ class StampDetector:
         self.stack.fill(0.0)                  # the gaps stay zero; windows are written anew
         self.filt = self._filt_buffer[:size].reshape(c, n * width)
         self.dilated = self._dilated_buffer[:size].reshape(c, n * width)
+        self.above = self._above_buffer[:size].reshape(c, n * width)
+        self.peak = self._peak_buffer[:size].reshape(c, n * width)
+        self.limit = self._limit_buffer[:n * width].reshape(n, width)
         self.cross = np.array([0, -1, 1, -n * width, n * width])   # a pixel and its 4
                                                                   # neighbours, flat offsets
         self.kernel = kernel.astype(np.float32)
@@ -336,17 +340,23 @@ class StampDetector:
     def _peaks(self, origins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(window, row, column) of the local maxima above threshold, most significant first."""
         n, c = self.cells, self.cell
+        width = self.limit.shape[1]
         cv2.dilate(self.filt, _NEIGHBOURS, dst=self.dilated)
-        filt = self.filt.reshape(c, n, -1)[:, :, :c]
-        np.greater_equal(filt, self.dilated.reshape(c, n, -1)[:, :, :c], out=self.peak)
-        limit = (self.k_sigma * self.filter_gain) * self.noise
-        np.greater(filt, limit[None, :, None], out=self.above)
+        # the tests run over the whole filtered image, gaps included (whole rows: a third
+        # of the time of the windows' strided view); a gap's pixels lie beyond every
+        # window's last column, which the margins below leave out
+        np.greater_equal(self.filt, self.dilated, out=self.peak)
+        np.multiply(self.noise, self.k_sigma * self.filter_gain, out=self.limit[:, 0])
+        self.limit[:, 1:] = self.limit[:, :1]
+        np.greater(self.filt, self.limit.reshape(-1), out=self.above)
         np.logical_and(self.peak, self.above, out=self.peak)
         hits = self.peak.ravel().nonzero()[0]
-        py, rest = np.divmod(hits, n * c)
-        win, px = np.divmod(rest, c)
+        py, rest = np.divmod(hits, n * width)
+        win, px = np.divmod(rest, width)
+        filt = self.filt.reshape(c, n, width)
         # the rows and columns a peak may take in its window: ``margin`` from an inner
-        # border, up to a border that is the frame's edge
+        # border (a gap's columns, from c on, beyond any), up to a border that is the
+        # frame's edge
         low = np.where(self.edge[:, :2], 0, self.margin)[win]              # (x, y)
         high = np.where(self.edge[:, 2:], c - 1, c - 1 - self.margin)[win]
         inside = ((px >= low[:, 0]) & (px <= high[:, 0])
