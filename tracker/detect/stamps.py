@@ -203,6 +203,7 @@ class StampDetector:
         self.noise = np.zeros(n, np.float32)
         self.table = StarTable(cfg.max_stars)
         self.timer = StageTimer()
+        self.sources = np.zeros(0, np.intp)   # the last result's stars' peaks (:meth:`detect`)
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
                          "sharp_spots": 0, "beyond_edge": 0, "candidates": 0, "left_out": 0}
         max_radius = int(math.ceil(3.0 * _effective_sigma(_MAX_SIGMA_PX)))
@@ -265,7 +266,9 @@ class StampDetector:
         (None: none) the mask (n,) of the stars at frame positions (n, 2)
         (x, y) px that the caller centres anew (a trailed star's line-spread
         fit, tracker.detect.trail): those keep their filtered peak's vertex,
-        not fitted here (module docstring, step 6).
+        not fitted here (module docstring, step 6). ``refitted`` is called once, on
+        every peak kept after the impulse test; ``sources`` then holds, for each star
+        of the result, its row among those positions.
         """
         timer = self.timer
         timer.reset()
@@ -447,6 +450,7 @@ class StampDetector:
         go to the table, most significant first. Returns their count."""
         m = len(win)
         if m == 0:
+            self.sources = np.zeros(0, np.intp)
             return 0
         r = self.radius
         side = 2 * r + 1
@@ -519,6 +523,7 @@ class StampDetector:
         keep = keep[~later_within(fx[keep], fy[keep], _SAME_STAR_PX)]
         self.counters["left_out"] = max(0, len(keep) - self.table.capacity)
         keep = keep[:self.table.capacity]
+        self.sources = keep
         count = len(keep)
         s = self.table.stars
         s["x"][:count], s["y"][:count] = fx[keep], fy[keep]
