@@ -215,3 +215,35 @@ def test_the_stars_the_edge_cuts_share_the_first_steps_of_the_others_fit():
     d, _ = _nearest(np.stack((x, y), 1), np.stack((found["x"], found["y"]), 1))
     assert np.all(d < 0.5), d
     assert passes == [4, 4, 3, 3], passes      # 3 cut stars, 1 whole one
+
+
+
+def test_peaks_in_the_filter_gaps_are_never_candidates():
+    """The peak tests run over the whole filtered image, its gaps between windows too
+    (whole rows): with noise in every pixel, gaps included, the candidates are exactly the
+    3 x 3 maxima above threshold inside the windows' allowed rows and columns (a reference
+    over the windows' own view), none from a gap."""
+    shape = (300, 400)
+    origins = np.array([[0, 10], [100, 0], [376, 140], [200, 276], [150, 150], [150, 200]])
+    stamps = StampDetector(DetectConfig(), shape, CELL, len(origins), 4, 10, np.uint16)
+    stamps._configure(1.2)
+    rng = np.random.default_rng(11)
+    stamps.filt[...] = rng.normal(0.0, 1.0, stamps.filt.shape)
+    stamps.noise[:] = rng.uniform(0.05, 0.2, len(origins))
+    np.equal(origins, 0, out=stamps.edge[:, :2])
+    np.equal(origins, stamps.far_origin, out=stamps.edge[:, 2:])
+    win, py, px = stamps._peaks(origins)
+    n, c = len(origins), CELL
+    filt = stamps.filt.reshape(c, n, -1)
+    assert filt.shape[2] > c                       # there are gaps
+    peak = filt[:, :, :c] >= stamps.dilated.reshape(c, n, -1)[:, :, :c]
+    peak &= filt[:, :, :c] > (stamps.k_sigma * stamps.filter_gain) * stamps.noise[None, :, None]
+    ry, rw, rx = peak.nonzero()
+    low = np.where(stamps.edge[:, :2], 0, stamps.margin)[rw]
+    high = np.where(stamps.edge[:, 2:], c - 1, c - 1 - stamps.margin)[rw]
+    ok = (rx >= low[:, 0]) & (rx <= high[:, 0]) & (ry >= low[:, 1]) & (ry <= high[:, 1])
+    gap = filt[:, :, c:] >= stamps.dilated.reshape(c, n, -1)[:, :, c:]
+    assert gap.any()                               # the gaps hold maxima of their own
+    assert len(win) == np.count_nonzero(ok) > 0
+    assert set(zip(win.tolist(), py.tolist(), px.tolist(), strict=True)) == set(
+        zip(rw[ok].tolist(), ry[ok].tolist(), rx[ok].tolist(), strict=True))

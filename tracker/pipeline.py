@@ -60,7 +60,6 @@ import logging
 import math
 import time
 from collections import OrderedDict
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -122,6 +121,27 @@ class FrameResult:
 def _cpu_ms_since(c0: int) -> float:
     """The process's CPU time (ns, time.process_time_ns) since ``c0``, in ms."""
     return (time.process_time_ns() - c0) / 1e6
+
+
+class _RefitPlan:
+    """The stamp detector's ``refitted`` (tracker.detect.stamps) on one frame: the mask (n,)
+    of the stars at frame positions ``xy`` (n, 2) px that the trail fit will re-centre
+    (``trail``, tracker.detect.trail.TrailFit.fitted) in a frame of ``shape`` whose
+    trails ``longest`` px bounds, from ``solver``'s smears at ``t_ns`` over
+    ``exposure_s``; those smears (n, 2) px are kept in ``smear``, so that the frame's
+    stars, found at these positions (or within the point fit's 1.5 px of them: their
+    smears differ by a few parts in 10^4), are not reckoned again (a frame's cost here is
+    numpy's calls, not its stars)."""
+
+    def __init__(self, trail: TrailFit, solver: Solver, shape: tuple[int, int], t_ns: int,
+                 exposure_s: float, longest: float) -> None:
+        self.trail, self.solver, self.shape = trail, solver, shape
+        self.t_ns, self.exposure_s, self.longest = t_ns, exposure_s, longest
+        self.smear: np.ndarray | None = None
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        self.smear = self.solver.smear_px(xy, self.t_ns, self.exposure_s)
+        return self.trail.fitted(self.shape, xy, self.smear, self.longest)
 
 
 class Pipeline:
@@ -296,27 +316,39 @@ class Pipeline:
         elif not identify:
             reason = "frame_size"
         else:
-            stars, smear = self._untrailed(image, detections.stars, t_ns, exposure, stages)
+            stars, smear = self._untrailed(image, detections.stars, t_ns, exposure,
+                                           self._longest_smear(t_ns, exposure), stages)
             solution = self.solve_stars(stars, t_ns, observer, exposure, smear)
             stages.update({f"identify.{k}": v for k, v in solution.stages_ms.items()})
         elapsed = (time.perf_counter_ns() - t0) / 1e6
         return FrameResult(detections, solution, elapsed, stages, reason, observer,
                            cpu_ms=_cpu_ms_since(c0), detect_cpu_ms=detect_cpu)
 
+    def _longest_smear(self, t_ns: int, exposure_s: float) -> float | None:
+        """A bound of the frame's longest trail, px (None: no rate, or no solver yet;
+        tracker.identify.solver.Solver.max_smear_px)."""
+        return None if self._solver is None else self._solver.max_smear_px(t_ns, exposure_s)
+
     def _untrailed(self, image: np.ndarray, stars: np.ndarray, t_ns: int, exposure_s: float,
-                   stages: dict) -> tuple[np.ndarray, np.ndarray | None]:
+                   longest: float | None, stages: dict,
+                   smear: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """``stars`` with trailed ones re-centred and merged (module docstring), or as given,
         and their smears (n, 2) px at the positions detected (None: not reckoned; the
         solve weighs the stars by them, tracker.identify.predict.centroid_variance: a
-        trail's centre moves it a few px, its smear by a thousandth of a pixel)."""
+        trail's centre moves it a few px, its smear by a thousandth of a pixel).
+
+        ``longest`` bounds the frame's trails (:meth:`_longest_smear`); ``smear`` (n,
+        2) px, if given, the stars' smears already reckoned (at their positions or
+        within a few px: the stamp detector's peaks, :class:`_RefitPlan`).
+        """
         if self._solver is None or len(stars) == 0 or image.ndim != 2:
             return stars, None
-        longest = self._solver.max_smear_px(t_ns, exposure_s)
         if longest is None or longest < self._trail.min_length:
             return stars, None            # no star of the frame trails far enough
         xy = np.empty((len(stars), 2))
         xy[:, 0], xy[:, 1] = stars["x"], stars["y"]
-        smear = self._solver.smear_px(xy, t_ns, exposure_s)
+        if smear is None:
+            smear = self._solver.smear_px(xy, t_ns, exposure_s)
         if smear is None or not (np.hypot(smear[:, 0], smear[:, 1])
                                  >= self._trail.min_length).any():
             return stars, smear
@@ -328,19 +360,13 @@ class Pipeline:
         stages["trail"] = (time.perf_counter_ns() - t0) / 1e6
         return stars[distinct], smear[distinct]
 
-    def _refitted(self, shape: tuple[int, int], t_ns: int,
-                  exposure_s: float) -> Callable[[np.ndarray], np.ndarray] | None:
-        """The mask (n,) of the stars at frame positions (n, 2) px that :meth:`_untrailed`
-        will fit as trails in a frame of ``shape``, as a function (None: no star of the
-        frame trails far enough)."""
-        longest = self._solver.max_smear_px(t_ns, exposure_s)
+    def _refit_plan(self, shape: tuple[int, int], t_ns: int, exposure_s: float,
+                    longest: float | None) -> _RefitPlan | None:
+        """The stamp detector's ``refitted`` for a frame of ``shape`` whose trails
+        ``longest`` px bounds (None: no star of the frame trails far enough)."""
         if longest is None or longest < self._trail.min_length:
             return None
-
-        def refitted(xy: np.ndarray) -> np.ndarray:
-            return self._trail.fitted(shape, xy, self._solver.smear_px(xy, t_ns, exposure_s),
-                                      longest)
-        return refitted
+        return _RefitPlan(self._trail, self.solver, shape, t_ns, exposure_s, longest)
 
     def _process_windows(self, image: np.ndarray, bit_depth: int, t_ns: int,
                          observer: Observer, exposure_s: float, t0: int,
@@ -360,11 +386,16 @@ class Pipeline:
         full = self.detector_for(image.shape, bit_depth)
         stamps = (self.cfg.identify.track_stamps and isinstance(full, DefaultDetector)
                   and not (measure_psf and self.cfg.detect.psf_measure))
+        longest = solver.max_smear_px(t_ns, exposure_s)
+        known = None                      # the detected stars' smears, if reckoned
         t1 = time.perf_counter_ns()
         if stamps:
-            detections = self.stamp_detector_for(plan.cell, image, bit_depth).detect(
-                image, plan.origins, full.psf_tracker.current,
-                self._refitted(image.shape, t_ns, exposure_s))
+            refit = self._refit_plan(image.shape, t_ns, exposure_s, longest)
+            stamp_detector = self.stamp_detector_for(plan.cell, image, bit_depth)
+            detections = stamp_detector.detect(image, plan.origins, full.psf_tracker.current,
+                                               refit)
+            if refit is not None and refit.smear is not None:
+                known = refit.smear[stamp_detector.sources]
         else:
             detections = self.window_detector_for(plan.cell, image, bit_depth,
                                                   measure_psf).detect(image, plan.origins)
@@ -372,7 +403,8 @@ class Pipeline:
         stages = {f"windows.{k}": v for k, v in detections.stages_ms.items()}
         stages["track.plan"] = (t1 - t0) / 1e6
         stages["windows.gather"] = (t2 - t1) / 1e6 - sum(detections.stages_ms.values())
-        stars, smear = self._untrailed(image, detections.stars, t_ns, exposure_s, stages)
+        stars, smear = self._untrailed(image, detections.stars, t_ns, exposure_s, longest,
+                                       stages, known)
         named = prediction.catalogue[:plan.stars] >= 0
         solution = solver.solve(stars, t_ns, observer, search_area_px=plan.area_px,
                                 predicted=prediction.catalogue[:plan.stars][named],

@@ -188,8 +188,9 @@ class StampDetector:
         self._stack_buffer = np.zeros(widest, np.float32)
         self._filt_buffer = np.zeros(widest, np.float32)
         self._dilated_buffer = np.zeros(widest, np.float32)
-        self.above = np.zeros((c, n, c), np.bool_)
-        self.peak = np.zeros((c, n, c), np.bool_)
+        self._above_buffer = np.zeros(widest, np.bool_)
+        self._peak_buffer = np.zeros(widest, np.bool_)
+        self._limit_buffer = np.zeros(widest // c, np.float32)   # a row's thresholds
         ring = np.zeros((c, c), bool)
         ring[:RING_PX], ring[-RING_PX:], ring[:, :RING_PX], ring[:, -RING_PX:] = (True,) * 4
         self.ring = np.flatnonzero(ring.ravel())
@@ -202,6 +203,7 @@ class StampDetector:
         self.noise = np.zeros(n, np.float32)
         self.table = StarTable(cfg.max_stars)
         self.timer = StageTimer()
+        self.sources = np.zeros(0, np.intp)   # the last result's stars' peaks (:meth:`detect`)
         self.counters = {"impulse_pixels": 0, "hot_pixels": 0, "cosmic_rays": 0,
                          "sharp_spots": 0, "beyond_edge": 0, "candidates": 0, "left_out": 0}
         max_radius = int(math.ceil(3.0 * _effective_sigma(_MAX_SIGMA_PX)))
@@ -227,6 +229,9 @@ class StampDetector:
         self.stack.fill(0.0)                  # the gaps stay zero; windows are written anew
         self.filt = self._filt_buffer[:size].reshape(c, n * width)
         self.dilated = self._dilated_buffer[:size].reshape(c, n * width)
+        self.above = self._above_buffer[:size].reshape(c, n * width)
+        self.peak = self._peak_buffer[:size].reshape(c, n * width)
+        self.limit = self._limit_buffer[:n * width].reshape(n, width)
         self.cross = np.array([0, -1, 1, -n * width, n * width])   # a pixel and its 4
                                                                   # neighbours, flat offsets
         self.kernel = kernel.astype(np.float32)
@@ -261,7 +266,9 @@ class StampDetector:
         (None: none) the mask (n,) of the stars at frame positions (n, 2)
         (x, y) px that the caller centres anew (a trailed star's line-spread
         fit, tracker.detect.trail): those keep their filtered peak's vertex,
-        not fitted here (module docstring, step 6).
+        not fitted here (module docstring, step 6). ``refitted`` is called once, on
+        every peak kept after the impulse test; ``sources`` then holds, for each star
+        of the result, its row among those positions.
         """
         timer = self.timer
         timer.reset()
@@ -336,17 +343,23 @@ class StampDetector:
     def _peaks(self, origins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(window, row, column) of the local maxima above threshold, most significant first."""
         n, c = self.cells, self.cell
+        width = self.limit.shape[1]
         cv2.dilate(self.filt, _NEIGHBOURS, dst=self.dilated)
-        filt = self.filt.reshape(c, n, -1)[:, :, :c]
-        np.greater_equal(filt, self.dilated.reshape(c, n, -1)[:, :, :c], out=self.peak)
-        limit = (self.k_sigma * self.filter_gain) * self.noise
-        np.greater(filt, limit[None, :, None], out=self.above)
+        # the tests run over the whole filtered image, gaps included (whole rows: a third
+        # of the time of the windows' strided view); a gap's pixels lie beyond every
+        # window's last column, which the margins below leave out
+        np.greater_equal(self.filt, self.dilated, out=self.peak)
+        np.multiply(self.noise, self.k_sigma * self.filter_gain, out=self.limit[:, 0])
+        self.limit[:, 1:] = self.limit[:, :1]
+        np.greater(self.filt, self.limit.reshape(-1), out=self.above)
         np.logical_and(self.peak, self.above, out=self.peak)
         hits = self.peak.ravel().nonzero()[0]
-        py, rest = np.divmod(hits, n * c)
-        win, px = np.divmod(rest, c)
+        py, rest = np.divmod(hits, n * width)
+        win, px = np.divmod(rest, width)
+        filt = self.filt.reshape(c, n, width)
         # the rows and columns a peak may take in its window: ``margin`` from an inner
-        # border, up to a border that is the frame's edge
+        # border (a gap's columns, from c on, beyond any), up to a border that is the
+        # frame's edge
         low = np.where(self.edge[:, :2], 0, self.margin)[win]              # (x, y)
         high = np.where(self.edge[:, 2:], c - 1, c - 1 - self.margin)[win]
         inside = ((px >= low[:, 0]) & (px <= high[:, 0])
@@ -437,6 +450,7 @@ class StampDetector:
         go to the table, most significant first. Returns their count."""
         m = len(win)
         if m == 0:
+            self.sources = np.zeros(0, np.intp)
             return 0
         r = self.radius
         side = 2 * r + 1
@@ -509,6 +523,7 @@ class StampDetector:
         keep = keep[~later_within(fx[keep], fy[keep], _SAME_STAR_PX)]
         self.counters["left_out"] = max(0, len(keep) - self.table.capacity)
         keep = keep[:self.table.capacity]
+        self.sources = keep
         count = len(keep)
         s = self.table.stars
         s["x"][:count], s["y"][:count] = fx[keep], fy[keep]
