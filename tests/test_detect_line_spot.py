@@ -397,6 +397,24 @@ def test_a_spot_of_one_clipped_pixel_is_judged_narrow_with_that_pixel_at_its_flo
         assert np.count_nonzero(out[300:]) > np.count_nonzero(censored[300:]), sigma
 
 
+def test_floor_fits_are_each_spots_own_fits_to_the_bit():
+    """floor_fit fits its spots at the floor and raised in one stack (issue 12's time):
+    each spot's coefficients and covariance are its own fit's alone, to the bit, and its
+    bound that of the spot judged alone."""
+    rng = np.random.default_rng(4)
+    light, clipped, phases = _one_clipped(0.7, 20.0, rng, 60)
+    noises = rng.uniform(10.0, 30.0, len(light))
+    coef, cov, bounded = floor_fit(light, clipped, phases[:, 0], phases[:, 1], noises, 0.7)
+    for i in range(len(light)):
+        one = slice(i, i + 1)
+        at_floor = line_fit(light[one], phases[one, 0], phases[one, 1], noises[one], 0.7)
+        alone = floor_fit(light[one], clipped[one], phases[one, 0], phases[one, 1],
+                          noises[one], 0.7)
+        assert np.array_equal(coef[i], at_floor[0][0]) and np.array_equal(cov[i], at_floor[1][0])
+        assert bounded[i] == alone[2][0]
+    assert np.count_nonzero(bounded) > 0
+
+
 def _edge_frame(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A tests/spot_grid.py frame of faint stars (sigma 0.65 px) on its grid, and along its
     four edges, 1-1.5 px inside them (their 5 x 5 reaching beyond the frame), stars and

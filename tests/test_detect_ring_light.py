@@ -38,6 +38,44 @@ def test_ring_median_is_the_profile_at_its_radius_without_the_spot_or_the_frame_
     assert abs(pixels[2] - (1.0 - beyond) * 2 * math.pi * 34.0) < 8
 
 
+def test_a_floor_leaves_every_median_at_or_above_it_and_marks_those_below():
+    """The floor (tracker.detect.ring_light, issue 12's time) reckons no median below it
+    (-inf) and every median at or above it exactly as without it: rings around and beside
+    stars over a sloping, noisy sky, floors from 2 noises under to 2 over each median."""
+    rng = np.random.default_rng(5)
+    h, w = 90, 110
+    yy, xx = np.mgrid[0:h, 0:w]
+    image = rng.normal(0.05 * xx, 1.0).astype(np.float32)
+    minus = np.full((h, w), 0.5, np.float32)
+    rings = LightRings(30.0)
+    p = 200
+    star_x, star_y = rng.uniform(0.0, w - 1.0, p), rng.uniform(0.0, h - 1.0, p)
+    radius = rng.uniform(3.0, 25.0, p)
+    spot_x, spot_y = star_x + radius, star_y.copy()
+    median, pixels = rings.light(image, minus, star_x, star_y, radius, spot_x, spot_y, 3.0)
+    floor = median + rng.uniform(-2.0, 2.0, p)
+    floored, floored_pixels = rings.light(image, minus, star_x, star_y, radius, spot_x,
+                                          spot_y, 3.0, np.nan_to_num(floor, nan=0.0))
+    assert np.array_equal(floored_pixels, pixels)
+    reached = median >= floor
+    assert 40 < np.count_nonzero(reached) < p - 40
+    assert np.array_equal(floored[reached], median[reached])
+    assert np.all(floored[~reached & (pixels > 0)] < floor[~reached & (pixels > 0)])
+    # rings inside the frame, read on the flat arrays
+    inside = (star_x > 10) & (star_x < w - 11) & (star_y > 10) & (star_y < h - 11)
+    offsets = rings.offsets(6.0, w)
+    centre = np.rint(star_y[inside]).astype(np.intp) * w + np.rint(star_x[inside]).astype(np.intp)
+    values = image.ravel()[centre[:, None] + offsets].astype(np.float64) - 0.5
+    whole = np.median(values, axis=1)
+    floor = whole + rng.uniform(-2.0, 2.0, len(centre))
+    around = rings.around(image.ravel(), minus.ravel(), centre, offsets, floor)
+    reached = whole >= floor
+    assert 10 < np.count_nonzero(reached) < len(centre) - 10
+    assert np.array_equal(around[reached], whole[reached])
+    assert np.all(around[~reached] < floor[~reached])
+    assert np.count_nonzero(around == -np.inf) > 10
+
+
 def _star_light(shape: tuple[int, int], psf: PsfShape,
                 stars: list[tuple[float, float, float]]) -> np.ndarray:
     """e- of ``stars`` (x, y, flux e-) under ``psf``, each pixel the mean of 4 x 4 points

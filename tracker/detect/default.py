@@ -283,6 +283,7 @@ _HALO_REACH_SIGMAS = 24.0      # a star's halo is judged this many PSF sigmas ou
 _HALO_STARS = 64               # ... around this many of the brightest stars at most,
 _HALO_PAIRS = 4096             # ... for this many spots beside them at most
 _LIGHT_CHUNK = 128             # spots whose rings are read at a time (bounds the temporaries)
+_FLOOR_ROUNDING = 1e-6         # a ring's floor (_light_floor) lies this part of its terms low
 
 
 def effective_sigma(psf_sigma_px: float) -> float:
@@ -1553,42 +1554,67 @@ class DefaultDetector:
         pairs = 0
         for first in range(0, len(faint), _LIGHT_CHUNK):
             some = faint[first:first + _LIGHT_CHUNK]
+            level, clear, floor = self._light_floor(some, rows, cols)
             px, py = cols[some].astype(np.float64), rows[some].astype(np.float64)
             inside = ((rows[some] >= reach) & (cols[some] >= reach) & (rows[some] < h - reach)
                       & (cols[some] < w - reach))
             median = np.empty(len(some))
             pixels = np.full(len(some), len(self.local_ring))
             median[inside] = self.rings.around(self.filt_pad.ravel(), self.bg_pad.ravel(),
-                                               cand[some[inside]], self.local_ring)
-            cut = ~inside
-            median[cut], pixels[cut] = self.rings.light(
-                self.filt, self.bg, px[cut], py[cut],
-                np.full(np.count_nonzero(cut), LOCAL_SKY_SIGMAS * self.sigma), px[cut], py[cut],
-                0.0)
-            out[some[self._under_light(some, rows, cols, median, pixels, LOCAL_ERRORS)]] = True
-            radius = np.hypot(px[None, :] - x[bright][:, None], py[None, :] - y[bright][:, None])
-            pair = ((radius >= self.radius) & (radius <= _HALO_REACH_SIGMAS * self.sigma)
-                    & (value[bright][:, None] >= HALO_CONTRAST * value[some][None, :]))
-            b, f = np.nonzero(pair)
+                                               cand[some[inside]], self.local_ring,
+                                               floor[inside])
+            cut = np.flatnonzero(~inside)
+            if len(cut):
+                median[cut], pixels[cut] = self.rings.light(
+                    self.filt, self.bg, px[cut], py[cut],
+                    np.full(len(cut), LOCAL_SKY_SIGMAS * self.sigma), px[cut], py[cut], 0.0,
+                    floor[cut])
+            out[some[self._under_light(some, level, clear, median, pixels, LOCAL_ERRORS)]] = True
+            # the contrast first: the pairs' distances only for the stars bright enough
+            b, f = np.nonzero(value[bright][:, None] >= HALO_CONTRAST * value[some][None, :])
+            radius = np.hypot(px[f] - x[bright[b]], py[f] - y[bright[b]])
+            near = (radius >= self.radius) & (radius <= _HALO_REACH_SIGMAS * self.sigma)
+            b, f, radius = b[near], f[near], radius[near]
             b, f = b[:_HALO_PAIRS - pairs], f[:_HALO_PAIRS - pairs]
+            radius = radius[:len(b)]
             pairs += len(b)
+            if len(b) == 0:
+                continue
             star, spot = bright[b], some[f]
-            ring = self.rings.light(self.filt, self.bg, x[star], y[star], radius[b, f], x[spot],
-                                    y[spot], SPOT_SIGMAS * math.sqrt(2.0) * self.filter_sigma)
-            out[spot[self._under_light(spot, rows, cols, *ring, HALO_ERRORS)]] = True
+            ring = self.rings.light(self.filt, self.bg, x[star], y[star], radius, x[spot],
+                                    y[spot], SPOT_SIGMAS * math.sqrt(2.0) * self.filter_sigma,
+                                    floor[f])
+            out[spot[self._under_light(spot, level[f], clear[f], *ring, HALO_ERRORS)]] = True
         return out
 
-    def _under_light(self, spot: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                     median: np.ndarray, pixels: np.ndarray, errors: float) -> np.ndarray:
-        """Whether each candidate ``spot`` (indices into the candidates at frame pixels
-        ``rows``, ``cols``) falls short of the threshold once the light of its ring
-        (``median``, ``pixels``: tracker.detect.ring_light.LightRings.light) is taken
-        from its filtered peak, that light counted ``errors`` standard errors up."""
+    def _light_floor(self, spot: np.ndarray, rows: np.ndarray,
+                     cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(the sky's filtered level, the threshold over the background, the floor) at each
+        candidate ``spot`` (indices into the candidates at frame pixels ``rows``,
+        ``cols``), ADU, (p,) each. The floor is the ring's light (its median over the
+        background) below which it cannot take the spot away (:meth:`_under_light`): the
+        sky's level and the spot's filtered peak over the threshold, lowered by a part in
+        a million of the sum of their sizes (the rounding of the sums, parts in 1e16, and
+        the level an ulp of float32 off, stays far within it); -inf where the spot does
+        not clear the threshold."""
         level = self.grid.at(self.residual, self.peaks.cand[spot],
                              np.zeros(len(spot), np.float32))
+        clear = self.threshold[rows[spot], cols[spot]] - self.bg[rows[spot], cols[spot]]
+        value = self.peaks.cand_values[spot].astype(np.float64)
+        over = value - clear
+        floor = level + over - _FLOOR_ROUNDING * (np.abs(level) + np.abs(value)
+                                                  + np.abs(clear) + 1.0)
+        return level, clear, np.where(over > 0.0, floor, -np.inf)
+
+    def _under_light(self, spot: np.ndarray, level: np.ndarray, clear: np.ndarray,
+                     median: np.ndarray, pixels: np.ndarray, errors: float) -> np.ndarray:
+        """Whether each candidate ``spot`` falls short of the threshold over the background
+        ``clear`` once the light of its ring (``median``, ``pixels``: tracker.detect.
+        ring_light.LightRings.light) is taken from its filtered peak, that light counted
+        ``errors`` standard errors above the sky's filtered level ``level``
+        (:meth:`_light_floor`)."""
         light = light_over_sky(median, pixels, level, self.peaks.cand_noise[spot],
                                self.filter_sigma, errors)
-        clear = self.threshold[rows[spot], cols[spot]] - self.bg[rows[spot], cols[spot]]
         return self.peaks.cand_values[spot] - light <= clear
 
     def _track_like(self, cand: np.ndarray, v: dict, noise: np.ndarray, level: np.ndarray,

@@ -284,12 +284,13 @@ def floor_fit(light: np.ndarray, clipped: np.ndarray, phase_x: np.ndarray,
     bounds the spot's from above (module docstring): (coefficients (m, 6), covariances
     (m, 3, 3), bounded (m,) bool). ``light``, ``phase_x``, ``phase_y``, ``noise`` as
     :func:`line_fit`'s; ``clipped``: (m, 25) bool, one pixel a row."""
-    coef, cov = line_fit(light, phase_x, phase_y, noise, sigma_px, shot_adu)
-    raised, raised_cov = line_fit(light + clipped * light, phase_x, phase_y, noise, sigma_px,
-                                  shot_adu)
+    m = len(light)
+    # both fits in one stack: each spot's is its own, the same to the bit as alone
+    coef, cov = line_fit(np.concatenate([light, light + clipped * light]),
+                         np.tile(phase_x, 2), np.tile(phase_y, 2), np.tile(noise, 2),
+                         sigma_px, shot_adu)
     fit, _, value, _ = _shapes(coef, cov)
-    raised_fit, _, raised_value, _ = _shapes(raised, raised_cov)
-    return coef, cov, fit & raised_fit & (raised_value[:, 2] <= value[:, 2])
+    return coef[:m], cov[:m], fit[:m] & fit[m:] & (value[m:, 2] <= value[:m, 2])
 
 
 def clipped_lines(clipped: np.ndarray, ellipticity: float) -> np.ndarray:

@@ -38,6 +38,12 @@ The spot keeps its detection only if its filtered peak less that light
 still clears the threshold over the background; a companion's light and a
 star's on a sky the ring measured are their own and still do.
 
+A spot only a ring's median at or above a floor takes away (its filtered peak
+over the threshold, above the sky's level) keeps its detection when fewer than
+half the ring's pixels reach that floor: the median is at most the upper middle
+value. Most rings are that far below (a spot well above the threshold on a
+flat sky), and their medians are not reckoned.
+
 The median's standard error is sqrt(pi / 2) times the filtered noise over
 the root of the ring's independent samples: the filtered noise is
 correlated along the ring over 2 sqrt(pi) filter sigmas (white noise
@@ -64,7 +70,7 @@ SPOT_SIGMAS = 3.0      # a spot's own filtered light reaches this many of its si
 _RING_HALF_WIDTH = 0.5     # px: a ring's pixels lie this close to its radius
 _CENTRE_REACH = math.sqrt(0.5)   # px: a pixel's distance from a star's centre differs from
                                  # its distance from the star's own pixel by at most this
-_ELEMENTS = 2048           # pixel offsets examined at a time (bounds the temporaries)
+_ELEMENTS = 8192           # pixel offsets examined at a time (bounds the temporaries)
 _MIN_PIXELS = 8            # a ring of fewer pixels in the frame tells no halo
 _MEDIAN_SE = math.sqrt(math.pi / 2.0)   # a median's standard error over the mean's
 
@@ -93,28 +99,37 @@ class LightRings:
 
     @staticmethod
     def around(image: np.ndarray, minus: np.ndarray, centre: np.ndarray,
-               offsets: np.ndarray) -> np.ndarray:
+               offsets: np.ndarray, floor: np.ndarray) -> np.ndarray:
         """The median of ``image`` less ``minus`` (flat, alike) on the ring ``offsets``
         (:meth:`offsets`) around each flat index ``centre`` (rings inside the arrays):
-        (p,) float."""
+        (p,) float; -inf where the ring's upper half lies below ``floor`` (p,), the
+        median not reckoned (:func:`_below_floor`)."""
         at = centre[:, None] + offsets[None, :]
         values = np.take(image, at).astype(np.float64)
         values -= np.take(minus, at)
-        return np.median(values, axis=1)
+        reach = np.flatnonzero(~_below_floor(
+            np.count_nonzero(values >= floor[:, None], axis=1), offsets.size))
+        median = np.full(len(centre), -np.inf)
+        if len(reach):
+            median[reach] = _middle(values[reach])
+        return median
 
     def light(self, image: np.ndarray, minus: np.ndarray, star_x: np.ndarray,
               star_y: np.ndarray, radius: np.ndarray, spot_x: np.ndarray,
-              spot_y: np.ndarray, spot_reach: float) -> tuple[np.ndarray, np.ndarray]:
+              spot_y: np.ndarray, spot_reach: float,
+              floor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(median, pixels) of ``image`` less ``minus`` (2-D, frame-shaped) on each ring: the pixels
         whose centres lie within half a pixel of ``radius`` (px) from (``star_x``,
         ``star_y``), none within ``spot_reach`` px of (``spot_x``, ``spot_y``) or beyond
-        the frame; (p,) float each (median NaN where a ring has no pixel). Pixel
+        the frame; (p,) float each (median NaN where a ring has no pixel, -inf where its
+        upper half lies below ``floor`` (p,), not reckoned: :func:`_below_floor`). Pixel
         convention of tracker.detect.result."""
         first = np.searchsorted(self.length, radius - _RING_HALF_WIDTH - _CENTRE_REACH)
         end = np.searchsorted(self.length, radius + _RING_HALF_WIDTH + _CENTRE_REACH,
                               side="right")
         median = np.full(len(radius), np.nan)
         pixels = np.zeros(len(radius), np.intp)
+        floor = np.full(len(radius), -np.inf) if floor is None else floor
         total = np.cumsum(end - first)
         start = 0
         while start < len(radius):   # rings of at most _ELEMENTS offsets read at a time
@@ -123,12 +138,12 @@ class LightRings:
             part = slice(start, stop)
             median[part], pixels[part] = self._medians(
                 image, minus, star_x[part], star_y[part], radius[part], spot_x[part],
-                spot_y[part], spot_reach, first[part], end[part])
+                spot_y[part], spot_reach, floor[part], first[part], end[part])
             start = stop
         return median, pixels
 
     def _medians(self, image, minus, star_x, star_y, radius, spot_x, spot_y, spot_reach,
-                 first, end) -> tuple[np.ndarray, np.ndarray]:
+                 floor, first, end) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`light` of rings whose offsets are ``first``..``end`` of the sorted ones."""
         h, w = image.shape
         cx, cy = np.rint(star_x).astype(np.intp), np.rint(star_y).astype(np.intp)
@@ -144,15 +159,37 @@ class LightRings:
         keep &= np.hypot(x - spot_x[ring], y - spot_y[ring]) > spot_reach
         ring, x, y = ring[keep], x[keep], y[keep]
         values = image[y, x].astype(np.float64) - minus[y, x]
-        values = values[np.lexsort((values, ring))]
         pixels = np.bincount(ring, minlength=len(radius))
-        start = np.cumsum(pixels) - pixels
-        median = np.full(len(radius), np.nan)
-        some = pixels > 0
-        low = start[some] + (pixels[some] - 1) // 2
-        high = start[some] + pixels[some] // 2
-        median[some] = 0.5 * (values[low] + values[high])
+        low = _below_floor(np.bincount(ring[values >= floor[ring]], minlength=len(radius)),
+                          pixels)
+        median = np.where(low & (pixels > 0), -np.inf, np.nan)
+        if low.all():
+            return median, pixels
+        reckoned = ~low[ring]
+        ring, values = ring[reckoned], values[reckoned]
+        values = values[np.lexsort((values, ring))]
+        count = np.where(low, 0, pixels)
+        start = np.cumsum(count) - count
+        some = count > 0
+        lower = start[some] + (count[some] - 1) // 2
+        upper = start[some] + count[some] // 2
+        median[some] = 0.5 * (values[lower] + values[upper])
         return median, pixels
+
+
+def _middle(values: np.ndarray) -> np.ndarray:
+    """The median of each row of ``values`` (p, m), the mean of its two middle values."""
+    m = values.shape[1]
+    middle = np.partition(values, ((m - 1) // 2, m // 2), axis=1)
+    return 0.5 * (middle[:, (m - 1) // 2] + middle[:, m // 2])
+
+
+def _below_floor(reaching: np.ndarray, pixels: np.ndarray | int) -> np.ndarray:
+    """Whether a ring of ``pixels`` pixels, ``reaching`` of them at or above a floor, has
+    its median below it: fewer than half reach it (its upper middle value lies below).
+    A ring's median is at most its upper middle value, so a spot that only a median at
+    the floor takes away keeps its detection without the median reckoned."""
+    return reaching < pixels - pixels // 2
 
 
 def light_over_sky(median: np.ndarray, pixels: np.ndarray, sky_level: np.ndarray,
